@@ -1,0 +1,1 @@
+"""Attitude estimators: one module per family; see ``registry`` for the names."""

@@ -1,0 +1,157 @@
+"""The estimator interface every gnomon filter follows.
+
+* ``Params``: a frozen dataclass of tuning values in SI units with defaults.
+  ``Params.from_dict`` rejects unknown names (a typo raises, naming it) and
+  converts command-line strings; ``validate`` checks ranges.
+* ``Estimator``: holds ``params`` and the evolving state. ``reset()`` returns it
+  to a fresh instance's state, ``update(...)`` processes one sample (streaming
+  use, signature per filter), ``run(recording)`` processes a whole
+  ``Recording`` and returns an ``Estimate`` with the attitude and the filter's
+  internal signals (bias estimate, rejection flags, ...).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from gnomon.errors import InputError
+from gnomon.recording import Recording
+
+__all__ = ["Params", "Estimate", "Estimator", "param"]
+
+
+def param(default, unit: str = "", doc: str = ""):
+    """A ``Params`` field with its unit and a one-line description (shown by ``gnomon filters``)."""
+    return field(default=default, metadata={"unit": unit, "doc": doc})
+
+
+_BOOL_WORDS = {"1": True, "true": True, "yes": True, "on": True,
+               "0": False, "false": False, "no": False, "off": False}
+
+
+def _convert(name: str, kind: type, value: Any):
+    if isinstance(value, str):
+        if kind is bool:
+            if value.lower() not in _BOOL_WORDS:
+                raise InputError(f"expected true/false, got {value!r}", field=name)
+            return _BOOL_WORDS[value.lower()]
+        try:
+            return kind(value)
+        except ValueError:
+            raise InputError(f"expected {kind.__name__}, got {value!r}", field=name) from None
+    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if kind is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, kind):
+        return value
+    raise InputError(f"expected {kind.__name__}, got {value!r}", field=name)
+
+
+@dataclass(frozen=True)
+class Params:
+    """Base class of every filter's tuning values (frozen; SI units; see ``describe``)."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, float) and not np.isfinite(v):
+                raise InputError(f"must be finite, got {v!r}", field=f.name)
+        self.validate()
+
+    def validate(self) -> None:
+        """Override to check ranges; raise ``InputError(field=name)``."""
+
+    def _require(self, name: str, ok: bool, what: str) -> None:
+        if not ok:
+            raise InputError(f"{what}, got {getattr(self, name)!r}", field=name)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]):
+        """Build from a mapping (e.g. parsed ``--param KEY=VALUE``); unknown names raise."""
+        hints = typing.get_type_hints(cls)
+        known = {f.name for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for key, value in values.items():
+            if key not in known:
+                raise InputError(
+                    f"unknown parameter for {cls.__qualname__}; known: {', '.join(sorted(known))}",
+                    field=key,
+                )
+            kwargs[key] = _convert(key, hints[key], value)
+        return cls(**kwargs)
+
+    def replace(self, **changes):
+        """A copy with some values changed (same validation)."""
+        return type(self).from_dict({**dataclasses.asdict(self), **changes})
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def describe(cls) -> list[dict]:
+        """Name, default, unit and description of every parameter."""
+        return [
+            {"name": f.name, "default": f.default, "unit": f.metadata.get("unit", ""),
+             "doc": f.metadata.get("doc", "")}
+            for f in dataclasses.fields(cls)
+        ]
+
+
+@dataclass
+class Estimate:
+    """What a filter's batch run returns.
+
+    ``q`` (N, 4) is the estimate ``q_rb`` ``[w, x, y, z]``: reference frame r
+    (``frames['reference']``, the same as the recording's) from body b.
+    ``signals`` holds internal time series (N, ...), e.g. ``bias_rad_s`` (N, 3)
+    and boolean flags such as ``acc_rejected``.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    estimator: str
+    params: dict
+    frames: dict = field(default_factory=dict)
+    signals: dict = field(default_factory=dict)
+
+
+class Estimator:
+    """Base class: ``Params`` + state + ``reset`` / ``update`` / ``run``."""
+
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    Params: ClassVar[type[Params]] = Params
+    #: Recording fields the filter needs (checked by ``run`` with a clear error).
+    needs: ClassVar[tuple[str, ...]] = ("gyro",)
+
+    def __init__(self, params: Params | None = None, **overrides):
+        if params is None:
+            params = self.Params.from_dict(overrides)
+        elif overrides:
+            params = params.replace(**overrides)
+        if not isinstance(params, self.Params):
+            raise TypeError(f"params must be {self.Params.__qualname__}, got {type(params)}")
+        self.params = params
+        self.reset()
+
+    def reset(self) -> None:  # pragma: no cover - every filter overrides
+        raise NotImplementedError
+
+    def run(self, rec: Recording) -> Estimate:  # pragma: no cover - every filter overrides
+        raise NotImplementedError
+
+    def check_inputs(self, rec: Recording) -> None:
+        """Raise ``InputError`` naming the first field the filter needs that ``rec`` lacks."""
+        for name in self.needs:
+            present = (rec.extra.get(name[6:]) is not None if name.startswith("extra.")
+                       else getattr(rec, name) is not None)
+            if not present:
+                raise InputError(f"filter '{self.name}' needs it; the recording has none",
+                                 field=name, file=rec.source or None)

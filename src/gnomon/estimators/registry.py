@@ -1,0 +1,37 @@
+"""Filter names -> estimator classes, for the command line and the benchmarks.
+
+Classes are imported lazily (``import gnomon`` stays light). To add a filter,
+add one line to ``_ENTRIES``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from gnomon.errors import InputError
+
+_ENTRIES: dict[str, str] = {
+    "mahony": "gnomon.estimators.mahony:Mahony",
+}
+
+
+def names() -> list[str]:
+    """Registered filter names, sorted."""
+    return sorted(_ENTRIES)
+
+
+def get(name: str):
+    """The estimator class registered as ``name``; unknown names raise ``InputError``."""
+    try:
+        target = _ENTRIES[name]
+    except KeyError:
+        raise InputError(f"unknown filter {name!r}; known: {', '.join(names())}",
+                         field="filter") from None
+    module, attr = target.split(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+def create(name: str, params: dict | None = None):
+    """An instance of filter ``name`` with parameters from a mapping (unknown keys raise)."""
+    cls = get(name)
+    return cls(cls.Params.from_dict(params or {}))
