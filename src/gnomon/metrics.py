@@ -9,27 +9,47 @@
   heading ``2·atan(|z/w|)``, inclination ``2·acos(sqrt(w² + z²))``.
 * ``rms``: root mean square over a boolean mask, NaN-free.
 
-All inputs have shape ``(N, 4)`` (or ``(..., 4)``); outputs are radians.
+All inputs have shape ``(N, 4)`` (or ``(..., 4)``); outputs are radians. A row
+with a NaN in either input (e.g. truth lost by the motion capture) gives NaN
+there; ``rms`` then needs a mask that excludes it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from gnomon.rotation import as_quat, error_angle, euler_from_quat, quat_conj, quat_mul
+from gnomon.rotation import error_angle, euler_from_quat, quat_conj, quat_mul
 
-__all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg"]
+__all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg", "score"]
+
+
+def _pair(q_true, q_est):
+    """Shape-checked copies with NaN rows replaced by identity, and the NaN-row mask."""
+    qt = np.asarray(q_true, dtype=float)
+    qe = np.asarray(q_est, dtype=float)
+    for name, q in (("q_true", qt), ("q_est", qe)):
+        if q.shape[-1:] != (4,):
+            raise ValueError(f"{name}: expected shape (..., 4), got {q.shape}")
+    qt, qe = np.broadcast_arrays(qt, qe)
+    bad = ~(np.all(np.isfinite(qt), axis=-1) & np.all(np.isfinite(qe), axis=-1))
+    one = np.array([1.0, 0.0, 0.0, 0.0])
+    return np.where(bad[..., None], one, qt), np.where(bad[..., None], one, qe), bad
+
+
+def _with_nan(x, bad):
+    return np.where(bad[..., None] if x.ndim > bad.ndim else bad, np.nan, x)
 
 
 def error_angle_rad(q_true, q_est) -> np.ndarray:
     """Total attitude error angle (rad, in [0, π]), sign-safe."""
-    return error_angle(q_true, q_est)
+    qt, qe, bad = _pair(q_true, q_est)
+    return _with_nan(error_angle(qt, qe), bad)
 
 
 def axis_errors_rad(q_true, q_est) -> np.ndarray:
     """Per-axis errors ``[roll, pitch, yaw]`` (rad): Euler angles of ``conj(q_true) ⊗ q_est``."""
-    d = quat_mul(quat_conj(as_quat(q_true, "q_true")), as_quat(q_est, "q_est"))
-    return euler_from_quat(d)
+    qt, qe, bad = _pair(q_true, q_est)
+    return _with_nan(euler_from_quat(quat_mul(quat_conj(qt), qe)), bad)
 
 
 def broad_errors_rad(q_true, q_est) -> dict[str, np.ndarray]:
@@ -37,14 +57,16 @@ def broad_errors_rad(q_true, q_est) -> dict[str, np.ndarray]:
 
     The reference frame's z axis must be vertical (ENU or NWU, as in BROAD).
     """
-    e = quat_mul(as_quat(q_est, "q_est"), quat_conj(as_quat(q_true, "q_true")))
+    qt, qe, bad = _pair(q_true, q_est)
+    e = quat_mul(qe, quat_conj(qt))
     e = e / np.linalg.norm(e, axis=-1, keepdims=True)
     w, z = e[..., 0], e[..., 3]
     total = 2.0 * np.arccos(np.clip(np.abs(w), 0.0, 1.0))
     with np.errstate(divide="ignore"):
         heading = 2.0 * np.arctan(np.abs(z / w))
     inclination = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
-    return {"total": total, "heading": heading, "inclination": inclination}
+    return {"total": _with_nan(total, bad), "heading": _with_nan(heading, bad),
+            "inclination": _with_nan(inclination, bad)}
 
 
 def rms(x, mask=None) -> float:
@@ -65,3 +87,23 @@ def rms(x, mask=None) -> float:
 def rms_deg(x_rad, mask=None) -> float:
     """``rms`` converted to degrees."""
     return float(np.degrees(rms(x_rad, mask)))
+
+
+def score(q_true, q_est, mask=None) -> dict:
+    """Summary of an estimate against the truth, in degrees, over ``mask`` and valid truth rows.
+
+    Keys: ``total_deg``, ``heading_deg``, ``inclination_deg`` (BROAD definitions;
+    meaningful when the reference frame's z axis is vertical), ``roll_deg``,
+    ``pitch_deg``, ``yaw_deg`` (RMS of the per-axis errors), ``max_deg`` (largest
+    total error) and ``samples`` (how many rows were scored).
+    """
+    q_true = np.asarray(q_true, dtype=float)
+    valid = np.all(np.isfinite(q_true), axis=-1)
+    m = valid if mask is None else valid & np.asarray(mask, dtype=bool)
+    broad = broad_errors_rad(q_true[m], np.asarray(q_est, dtype=float)[m])
+    axes = axis_errors_rad(q_true[m], np.asarray(q_est, dtype=float)[m])
+    out = {f"{k}_deg": rms_deg(v) for k, v in broad.items()}
+    out.update({f"{k}_deg": rms_deg(axes[:, i]) for i, k in enumerate(("roll", "pitch", "yaw"))})
+    out["max_deg"] = float(np.degrees(broad["total"].max())) if broad["total"].size else np.nan
+    out["samples"] = int(m.sum())
+    return out

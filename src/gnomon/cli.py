@@ -1,0 +1,260 @@
+"""The ``gnomon`` command line: parse, call the library, print. No logic of its own.
+
+Every command is one library call a user could make from Python (named in
+each command's help). Bad input ends with one line ``gnomon: error: ...``
+naming the file, field and row, and exit status 2 — never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+from gnomon import __version__
+from gnomon.errors import InputError
+
+PAPERS = ("000", "001", "002", "003", "004")
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def _clean(o):
+    """NaN/inf -> None so the output is strict JSON."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    return o
+
+
+def print_json(obj) -> None:
+    print(json.dumps(_clean(json.loads(json.dumps(obj, default=_json_default))), indent=2))
+
+
+def _params(pairs: list[str]) -> dict:
+    out = {}
+    for p in pairs or []:
+        if "=" not in p:
+            raise InputError(f"expected KEY=VALUE, got {p!r}", field="--param")
+        k, v = p.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+# ------------------------------------------------------------------ commands
+def cmd_filters(args) -> int:
+    """``gnomon.estimators.registry``: names, parameters, defaults, units."""
+    from gnomon.estimators import registry
+
+    table = []
+    for name in registry.names():
+        cls = registry.get(name)
+        table.append({"name": name, "summary": cls.summary, "needs": list(cls.needs),
+                      "params": cls.Params.describe()})
+    if args.json:
+        print_json(table)
+        return 0
+    for f in table:
+        print(f"{f['name']}: {f['summary']}  (needs {', '.join(f['needs'])})")
+        for p in f["params"]:
+            unit = f" [{p['unit']}]" if p["unit"] else ""
+            print(f"    {p['name']} = {p['default']!r}{unit}  {p['doc']}")
+    return 0
+
+
+def _read_input(args):
+    from gnomon.io import read
+
+    csv_opts = {}
+    if args.columns:
+        csv_opts["columns"] = dict(kv.split("=", 1) for kv in args.columns.split(","))
+    for opt in ("gyro_unit", "accel_unit", "mag_unit", "time_unit"):
+        if getattr(args, opt):
+            csv_opts[opt] = getattr(args, opt)
+    return read(args.input, format=args.format, **csv_opts)
+
+
+def cmd_estimate(args) -> int:
+    """``registry.create(name, params).run(gnomon.io.read(path))`` and ``metrics.score``."""
+    from gnomon.estimators import registry
+    from gnomon.metrics import score
+
+    rec = _read_input(args)
+    est = registry.create(args.filter, _params(args.param)).run(rec)
+    summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
+               "params": est.params}
+    if rec.q_true is not None:
+        summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
+    if args.out:
+        from gnomon.io.estimate import write_estimate
+
+        write_estimate(args.out, est)
+        summary["out"] = str(args.out)
+    if args.plot:
+        from gnomon.report.figures import plot_estimate
+
+        plot_estimate(rec, est, args.plot)
+        summary["plot"] = str(args.plot)
+    if args.json:
+        print_json(summary)
+        return 0
+    print(f"{args.filter} on {args.input}: {len(rec)} samples")
+    if "errors" in summary:
+        e = summary["errors"]
+        print(f"  RMS error over {e['samples']} scored samples: total {e['total_deg']:.3f} deg, "
+              f"heading {e['heading_deg']:.3f} deg, inclination {e['inclination_deg']:.3f} deg")
+        print(f"  per axis: roll {e['roll_deg']:.3f}, pitch {e['pitch_deg']:.3f}, "
+              f"yaw {e['yaw_deg']:.3f} deg; max {e['max_deg']:.3f} deg")
+    else:
+        print("  (no truth in the input: no error summary)")
+    for key in ("out", "plot"):
+        if key in summary:
+            print(f"  wrote {summary[key]}")
+    return 0
+
+
+def cmd_benchmark(args) -> int:
+    """``gnomon.benchmark.run_broad(data_dir, filters, anchors)``."""
+    from gnomon.benchmark import DEFAULT_FILTERS, run_broad
+
+    filters = args.filters.split(",") if args.filters else list(DEFAULT_FILTERS)
+    anchors = None if args.anchors is None else (
+        [] if args.anchors in ("", "none") else args.anchors.split(","))
+    res = run_broad(args.data, filters=filters, anchors=anchors,
+                    progress=not args.json and sys.stderr.isatty())
+    if args.plot:
+        from gnomon.report.figures import plot_broad
+
+        plot_broad(res, args.plot)
+    if args.json:
+        print_json(res)
+        return 0
+    trials = sorted({r["trial"] for r in res["trials"]})
+    methods = list(res["mean"])
+    width = max(len(t) for t in trials) if trials else 10
+    print(f"BROAD benchmark: {len(trials)} trials in {args.data}; RMSE total (deg)")
+    print(" " * width + "".join(f"{m:>15}" for m in methods))
+    cell = {(r["trial"], r["method"]): r["total_deg"] for r in res["trials"]}
+    for t in trials:
+        print(f"{t:<{width}}" + "".join(f"{cell.get((t, m), float('nan')):>15.3f}"
+                                         for m in methods))
+    for k in ("total", "heading", "inclination"):
+        print(f"{'mean ' + k:<{width}}" + "".join(
+            f"{res['mean'][m][k + '_deg']:>15.3f}" for m in methods))
+    if res.get("groups"):
+        print("\nper group (mean total RMSE, deg)")
+        groups = sorted({g for m in res["groups"] for g in res["groups"][m]})
+        for g in groups:
+            print(f"{g:<{width}}" + "".join(
+                f"{res['groups'].get(m, {}).get(g, {}).get('total_deg', float('nan')):>15.3f}"
+                for m in methods))
+    for e in res["errors"]:
+        print(f"failed: {e['trial']} {e['method']}: {e['error']}", file=sys.stderr)
+    if args.plot:
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    """``gnomon.reproduce.pNNN.run(out_dir, quick)`` (``all``: ``gnomon.reproduce.run_all``)."""
+    from gnomon import reproduce
+
+    out = Path(args.out) if args.out else None
+    if args.paper == "all":
+        res = reproduce.run_all(out_dir=out, quick=args.quick, progress=not args.json)
+    else:
+        res = reproduce.run(args.paper, out_dir=out, quick=args.quick, progress=not args.json)
+    if args.json:
+        print_json(res)
+    else:
+        print(json.dumps(_clean(json.loads(json.dumps(res, default=_json_default))), indent=2))
+        if out is not None:
+            print(f"wrote {out}")
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gnomon",
+        description="Attitude determination and estimation: filters, benchmarks, reproductions. "
+                    "Quaternions are Hamilton, scalar-first [w, x, y, z]; q_ab maps b to a.")
+    p.add_argument("--version", action="version", version=f"gnomon {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("filters", help="list filters with their parameters, defaults and units")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
+    s.set_defaults(func=cmd_filters)
+
+    s = sub.add_parser("estimate", help="run a filter on a recording (CSV, BROAD, gnomon HDF5)")
+    s.add_argument("input", help="recording file")
+    s.add_argument("--filter", default="mahony", help="filter name (see `gnomon filters`)")
+    s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
+    s.add_argument("--format", default="auto", choices=["auto", "broad", "csv", "hdf5"])
+    s.add_argument("--out", help="write the estimate (.csv or .h5)")
+    s.add_argument("--plot", help="write a figure (attitude, errors, bias, flags), e.g. out.png")
+    s.add_argument("--json", action="store_true", help="print a JSON summary")
+    g = s.add_argument_group("CSV options")
+    g.add_argument("--columns", help="column map NAME=COLUMN,... (names: t, gyr_x, ..., mag_z)")
+    g.add_argument("--gyro-unit", help="rad/s (default) or deg/s")
+    g.add_argument("--accel-unit", help="m/s^2 (default) or g")
+    g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
+    g.add_argument("--time-unit", help="s (default), ms, us or ns")
+    s.set_defaults(func=cmd_estimate)
+
+    s = sub.add_parser("benchmark", help="score filters on a benchmark data set")
+    s.add_argument("dataset", choices=["broad"], help="benchmark data set")
+    s.add_argument("--data", required=True, help="directory with the BROAD trials")
+    s.add_argument("--filters", help="comma-separated gnomon filters (default: all 9-axis ones)")
+    s.add_argument("--anchors", help="reference libraries: vqf,imufusion,ahrs-madgwick "
+                                     "(default: every installed one; 'none' for none)")
+    s.add_argument("--plot", help="write a per-trial bar chart, e.g. broad.png")
+    s.add_argument("--json", action="store_true", help="print the JSON result")
+    s.set_defaults(func=cmd_benchmark)
+
+    available = [n for n in PAPERS
+                 if importlib.util.find_spec(f"gnomon.reproduce.p{n}") is not None]
+    s = sub.add_parser("reproduce", help="reproduce a paper's experiments: "
+                                         + ", ".join(available + ["all"]))
+    s.add_argument("paper", choices=available + ["all"])
+    s.add_argument("--out", help="directory for figures, metrics.json (and the HTML report)")
+    s.add_argument("--quick", action="store_true", help="short version (for CI)")
+    s.add_argument("--json", action="store_true", help="print the result as JSON only")
+    s.set_defaults(func=cmd_reproduce)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return args.func(args)
+    except InputError as e:
+        print(f"gnomon: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gnomon: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""Explicit complementary filter for a 9-axis IMU (gyro + accelerometer + magnetometer).
+
+Mahony, Hamel, Pflimlin, "Nonlinear complementary filters on the special
+orthogonal group", IEEE TAC 53(5), 2008, the "explicit complementary filter"
+with bias estimation (their eq. 32), written with quaternions. It is the IMU
+twin of the spacecraft filter of seed 000 (``shared/spec/000-*.md``).
+
+Frames: navigation frame n = East-North-Up; the estimate is ``q_nb`` (ENU from
+body). With ``v̂_i = R̂_nbᵀ v_i⁰`` the reference directions predicted in the body:
+
+    e_acc = a × v̂_up,   e_mag = P(m × v̂_mag)        (body frame)
+
+``a``, ``m`` are the normalised accelerometer and magnetometer readings;
+``v_up = [0, 0, 1]``; the magnetic reference is built from the estimate,
+``[0, |h_xy|, h_z]/|h|`` with ``h = R̂ m`` (Madgwick's trick: no local
+inclination needed). ``P`` keeps only the component of the magnetic correction
+about the vertical (``mag_heading_only``), so a disturbed field cannot tilt the
+estimate. In gnomon's form the two proportional gains are separate,
+
+    ω = ω_y - b + k_a e_acc + k_m e_mag,   ḃ = -k_I (e_acc + e_mag),
+
+with ``kp_acc_rad_s``, ``kp_mag_rad_s`` (rad/s per unit error) and ``ki_per_s``
+(rad/s² per unit error).
+
+Samples with a zero-norm accelerometer or magnetometer vector skip that
+correction and are flagged (``acc_skipped``, ``mag_skipped``). Intervals longer
+than ``max_dt_s`` are treated as gaps: the filter only propagates the gyro
+over them (``gap`` flag).
+
+The readable per-sample ``update`` is the reference; ``run`` uses the numba
+kernel ``gnomon.kernels.mahony`` which the tests compare to it sample by sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.initial import initial_attitude
+from gnomon.recording import Recording
+from gnomon.rotation import quat_from_rotvec, quat_mul, quat_rotate
+
+__all__ = ["MahonyParams", "Mahony"]
+
+
+@dataclass(frozen=True)
+class MahonyParams(Params):
+    kp_acc_rad_s: float = param(0.6, "rad/s", "proportional gain of the accelerometer correction")
+    kp_mag_rad_s: float = param(0.3, "rad/s", "proportional gain of the magnetometer correction")
+    ki_per_s: float = param(0.005, "rad/s^2", "integral gain (gyro bias estimation)")
+    mag_heading_only: bool = param(True, "", "magnetometer corrects heading only (not tilt)")
+    init_samples: int = param(1, "samples", "samples averaged for the initial attitude")
+    max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro propagation only")
+
+    def validate(self):
+        self._require("kp_acc_rad_s", self.kp_acc_rad_s >= 0, "must be >= 0")
+        self._require("kp_mag_rad_s", self.kp_mag_rad_s >= 0, "must be >= 0")
+        self._require("ki_per_s", self.ki_per_s >= 0, "must be >= 0")
+        self._require("init_samples", self.init_samples >= 1, "must be >= 1")
+        self._require("max_dt_s", self.max_dt_s > 0, "must be > 0")
+
+
+def _unit(v):
+    n = float(np.sqrt(v @ v))
+    return (v / n, True) if n > 0.0 and np.isfinite(n) else (v, False)
+
+
+class Mahony(Estimator):
+    """Explicit complementary filter (Mahony et al. 2008), 9-axis, ENU; estimate ``q_nb``."""
+
+    name = "mahony"
+    summary = "Explicit complementary filter (Mahony 2008), gyro+acc+mag, PI bias estimation"
+    Params = MahonyParams
+    needs = ("gyro", "accel", "mag")
+
+    def reset(self) -> None:
+        self.q = None  # q_nb, set from the first accelerometer/magnetometer sample
+        self.bias = np.zeros(3)  # rad/s
+
+    def initialise(self, acc, mag) -> None:
+        """Set ``q`` from accelerometer and magnetometer samples (N, 3) (or (3,))."""
+        self.q = initial_attitude(np.atleast_2d(acc), np.atleast_2d(mag),
+                                  self.params.init_samples)
+
+    def update(self, dt_s: float, gyro, acc, mag) -> np.ndarray:
+        """One sample: ``gyro`` rad/s, ``acc``/``mag`` any unit (body). Returns ``q_nb`` (4,)."""
+        p = self.params
+        if self.q is None:
+            self.initialise(acc, mag)
+        gyro = np.asarray(gyro, float)
+        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
+        if dt_s <= 0.0:
+            return self.q
+        omega = gyro - self.bias
+        if dt_s > p.max_dt_s:
+            self.flags["gap"] = True
+        else:
+            a, ok_a = _unit(np.asarray(acc, float))
+            m, ok_m = _unit(np.asarray(mag, float))
+            q_bn = self.q * np.array([1.0, -1.0, -1.0, -1.0])
+            v_up = quat_rotate(q_bn, np.array([0.0, 0.0, 1.0]))
+            e_acc = np.cross(a, v_up) if ok_a else np.zeros(3)
+            e_mag = np.zeros(3)
+            if ok_m:
+                h = quat_rotate(self.q, m)
+                ref = np.array([0.0, np.hypot(h[0], h[1]), h[2]])
+                e_mag = np.cross(m, quat_rotate(q_bn, ref))
+                if p.mag_heading_only:
+                    e_mag = (e_mag @ v_up) * v_up
+            self.flags["acc_skipped"] = not ok_a
+            self.flags["mag_skipped"] = not ok_m
+            self.bias = self.bias - p.ki_per_s * (e_acc + e_mag) * dt_s
+            omega = gyro - self.bias + p.kp_acc_rad_s * e_acc + p.kp_mag_rad_s * e_mag
+        self.q = quat_mul(self.q, quat_from_rotvec(omega * dt_s))
+        self.q = self.q / np.linalg.norm(self.q)
+        return self.q
+
+    def run(self, rec: Recording) -> Estimate:
+        """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
+        from gnomon.kernels.mahony import mahony_batch
+
+        self.check_inputs(rec)
+        p = self.params
+        if self.q is None:
+            self.initialise(rec.accel, rec.mag)
+        n = len(rec)
+        dt = np.empty(n)
+        dt[0] = 0.0
+        dt[1:] = np.diff(rec.t)
+        q_out = np.empty((n, 4))
+        b_out = np.empty((n, 3))
+        flags = np.zeros((n, 3), np.bool_)
+        state_q = np.array(self.q, float)
+        state_b = np.array(self.bias, float)
+        mahony_batch(dt, np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
+                     np.ascontiguousarray(rec.mag), state_q, state_b, p.kp_acc_rad_s,
+                     p.kp_mag_rad_s, p.ki_per_s, p.mag_heading_only, p.max_dt_s, q_out, b_out,
+                     flags)
+        self.q, self.bias = state_q, state_b
+        return Estimate(
+            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
+            frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
+            signals={"bias_rad_s": b_out, "acc_skipped": flags[:, 0],
+                     "mag_skipped": flags[:, 1], "gap": flags[:, 2]},
+        )

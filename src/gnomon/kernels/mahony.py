@@ -1,0 +1,123 @@
+"""Compiled batch loop of the 9-axis explicit complementary filter (``gnomon.estimators.mahony``)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, fastmath=False)
+def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
+                kp_acc, kp_mag, ki, heading_only, max_dt, flags):
+    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias; flags (3,) acc/mag/gap."""
+    flags[0] = False
+    flags[1] = False
+    flags[2] = False
+    if dt <= 0.0:
+        return
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    ox = gx - b[0]
+    oy = gy - b[1]
+    oz = gz - b[2]
+    if dt > max_dt:
+        flags[2] = True
+    else:
+        # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
+        ux = 2.0 * (x * z - w * y)
+        uy = 2.0 * (y * z + w * x)
+        uz = 1.0 - 2.0 * (x * x + y * y)
+        ex = 0.0
+        ey = 0.0
+        ez = 0.0
+        na = math.sqrt(ax * ax + ay * ay + az * az)
+        if na > 0.0:
+            ax /= na
+            ay /= na
+            az /= na
+            ex = ay * uz - az * uy
+            ey = az * ux - ax * uz
+            ez = ax * uy - ay * ux
+        else:
+            flags[0] = True
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        nm = math.sqrt(mx * mx + my * my + mz * mz)
+        if nm > 0.0:
+            mx /= nm
+            my /= nm
+            mz /= nm
+            # h = R_nb m
+            hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
+                + 2.0 * (x * z + w * y) * mz
+            hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
+                + 2.0 * (y * z - w * x) * mz
+            hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
+                + (1.0 - 2.0 * (x * x + y * y)) * mz
+            rn = math.sqrt(hx * hx + hy * hy)
+            # predicted magnetic direction in body: R_nb^T [0, rn, hz]
+            vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
+            vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
+            vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
+            fx = my * vz - mz * vy
+            fy = mz * vx - mx * vz
+            fz = mx * vy - my * vx
+            if heading_only:
+                d = fx * ux + fy * uy + fz * uz
+                fx = d * ux
+                fy = d * uy
+                fz = d * uz
+        else:
+            flags[1] = True
+        b[0] -= ki * (ex + fx) * dt
+        b[1] -= ki * (ey + fy) * dt
+        b[2] -= ki * (ez + fz) * dt
+        ox = gx - b[0] + kp_acc * ex + kp_mag * fx
+        oy = gy - b[1] + kp_acc * ey + kp_mag * fy
+        oz = gz - b[2] + kp_acc * ez + kp_mag * fz
+    # q <- q ⊗ exp(omega dt)
+    rx = ox * dt
+    ry = oy * dt
+    rz = oz * dt
+    th = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if th < 1e-4:
+        th2 = th * th
+        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
+    else:
+        k = math.sin(0.5 * th) / th
+    dw = math.cos(0.5 * th)
+    dx = k * rx
+    dy = k * ry
+    dz = k * rz
+    nw = w * dw - x * dx - y * dy - z * dz
+    nx = w * dx + x * dw + y * dz - z * dy
+    ny = w * dy - x * dz + y * dw + z * dx
+    nz = w * dz + x * dy - y * dx + z * dw
+    s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    q[0] = nw * s
+    q[1] = nx * s
+    q[2] = ny * s
+    q[3] = nz * s
+
+
+@njit(cache=True)
+def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
+                 q_out, b_out, flags):
+    """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
+
+    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs (N, 4), (N, 3), (N, 3).
+    """
+    n = dt.shape[0]
+    for i in range(n):
+        mahony_step(q, b, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
+                    acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
+                    heading_only, max_dt, flags[i])
+        q_out[i, 0] = q[0]
+        q_out[i, 1] = q[1]
+        q_out[i, 2] = q[2]
+        q_out[i, 3] = q[3]
+        b_out[i, 0] = b[0]
+        b_out[i, 1] = b[1]
+        b_out[i, 2] = b[2]
