@@ -1,6 +1,7 @@
 """Error metrics between an estimated and a true attitude (same frames: ``q_rb``, r from body).
 
-* ``error_angle_rad``: total attitude error ``2·atan2(|δq_xyz|, |δq_w|)``, ``δq = conj(q_true) ⊗ q_est``.
+* ``error_angle_rad``: total attitude error ``2·atan2(|δq_xyz|, |δq_w|)``,
+  ``δq = conj(q_true) ⊗ q_est``.
 * ``axis_errors_rad``: Euler angles ``[roll, pitch, yaw]`` (z-y'-x'') of ``δq``,
   the small-angle per-axis errors of the papers' plots (error expressed in the body frame).
 * ``broad_errors_rad``: the BROAD benchmark's total / heading / inclination errors,

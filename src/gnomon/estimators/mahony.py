@@ -25,7 +25,9 @@ with ``kp_acc_rad_s``, ``kp_mag_rad_s`` (rad/s per unit error) and ``ki_per_s``
 Samples with a zero-norm accelerometer or magnetometer vector skip that
 correction and are flagged (``acc_skipped``, ``mag_skipped``). Intervals longer
 than ``max_dt_s`` are treated as gaps: the filter only propagates the gyro
-over them (``gap`` flag).
+over them (``gap`` flag). Each step first propagates with the gyro sample over
+``(t[k-1], t[k]]`` and then corrects with the vector measurements at ``t[k]``
+(correcting the old state with new vectors would leave a lag error of ``|ω|·dt``).
 
 The readable per-sample ``update`` is the reference; ``run`` uses the numba
 kernel ``gnomon.kernels.mahony`` which the tests compare to it sample by sample.
@@ -93,27 +95,29 @@ class Mahony(Estimator):
         self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
         if dt_s <= 0.0:
             return self.q
-        omega = gyro - self.bias
+        # prediction with the gyro over (t[k-1], t[k]], then correction with the vectors at t[k]
+        self.q = quat_mul(self.q, quat_from_rotvec((gyro - self.bias) * dt_s))
+        self.q = self.q / np.linalg.norm(self.q)
         if dt_s > p.max_dt_s:
             self.flags["gap"] = True
-        else:
-            a, ok_a = _unit(np.asarray(acc, float))
-            m, ok_m = _unit(np.asarray(mag, float))
-            q_bn = self.q * np.array([1.0, -1.0, -1.0, -1.0])
-            v_up = quat_rotate(q_bn, np.array([0.0, 0.0, 1.0]))
-            e_acc = np.cross(a, v_up) if ok_a else np.zeros(3)
-            e_mag = np.zeros(3)
-            if ok_m:
-                h = quat_rotate(self.q, m)
-                ref = np.array([0.0, np.hypot(h[0], h[1]), h[2]])
-                e_mag = np.cross(m, quat_rotate(q_bn, ref))
-                if p.mag_heading_only:
-                    e_mag = (e_mag @ v_up) * v_up
-            self.flags["acc_skipped"] = not ok_a
-            self.flags["mag_skipped"] = not ok_m
-            self.bias = self.bias - p.ki_per_s * (e_acc + e_mag) * dt_s
-            omega = gyro - self.bias + p.kp_acc_rad_s * e_acc + p.kp_mag_rad_s * e_mag
-        self.q = quat_mul(self.q, quat_from_rotvec(omega * dt_s))
+            return self.q
+        a, ok_a = _unit(np.asarray(acc, float))
+        m, ok_m = _unit(np.asarray(mag, float))
+        q_bn = self.q * np.array([1.0, -1.0, -1.0, -1.0])
+        v_up = quat_rotate(q_bn, np.array([0.0, 0.0, 1.0]))
+        e_acc = np.cross(a, v_up) if ok_a else np.zeros(3)
+        e_mag = np.zeros(3)
+        if ok_m:
+            h = quat_rotate(self.q, m)
+            ref = np.array([0.0, np.hypot(h[0], h[1]), h[2]])
+            e_mag = np.cross(m, quat_rotate(q_bn, ref))
+            if p.mag_heading_only:
+                e_mag = (e_mag @ v_up) * v_up
+        self.flags["acc_skipped"] = not ok_a
+        self.flags["mag_skipped"] = not ok_m
+        self.bias = self.bias - p.ki_per_s * (e_acc + e_mag) * dt_s
+        correction = p.kp_acc_rad_s * e_acc + p.kp_mag_rad_s * e_mag
+        self.q = quat_mul(self.q, quat_from_rotvec(correction * dt_s))
         self.q = self.q / np.linalg.norm(self.q)
         return self.q
 

@@ -1,10 +1,12 @@
-"""Compiled batch loop of the 9-axis explicit complementary filter (``gnomon.estimators.mahony``)."""
+"""Compiled batch loop of the 9-axis explicit complementary filter.
+
+Twin of ``gnomon.estimators.mahony.Mahony.update`` (tested sample by sample).
+"""
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 
@@ -17,70 +19,68 @@ def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
     flags[2] = False
     if dt <= 0.0:
         return
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    ox = gx - b[0]
-    oy = gy - b[1]
-    oz = gz - b[2]
+    _rotate_by(q, (gx - b[0]) * dt, (gy - b[1]) * dt, (gz - b[2]) * dt)
     if dt > max_dt:
         flags[2] = True
+        return
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
+    ux = 2.0 * (x * z - w * y)
+    uy = 2.0 * (y * z + w * x)
+    uz = 1.0 - 2.0 * (x * x + y * y)
+    ex = 0.0
+    ey = 0.0
+    ez = 0.0
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    if na > 0.0:
+        ax /= na
+        ay /= na
+        az /= na
+        ex = ay * uz - az * uy
+        ey = az * ux - ax * uz
+        ez = ax * uy - ay * ux
     else:
-        # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
-        ux = 2.0 * (x * z - w * y)
-        uy = 2.0 * (y * z + w * x)
-        uz = 1.0 - 2.0 * (x * x + y * y)
-        ex = 0.0
-        ey = 0.0
-        ez = 0.0
-        na = math.sqrt(ax * ax + ay * ay + az * az)
-        if na > 0.0:
-            ax /= na
-            ay /= na
-            az /= na
-            ex = ay * uz - az * uy
-            ey = az * ux - ax * uz
-            ez = ax * uy - ay * ux
-        else:
-            flags[0] = True
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        nm = math.sqrt(mx * mx + my * my + mz * mz)
-        if nm > 0.0:
-            mx /= nm
-            my /= nm
-            mz /= nm
-            # h = R_nb m
-            hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
-                + 2.0 * (x * z + w * y) * mz
-            hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
-                + 2.0 * (y * z - w * x) * mz
-            hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
-                + (1.0 - 2.0 * (x * x + y * y)) * mz
-            rn = math.sqrt(hx * hx + hy * hy)
-            # predicted magnetic direction in body: R_nb^T [0, rn, hz]
-            vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
-            vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
-            vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
-            fx = my * vz - mz * vy
-            fy = mz * vx - mx * vz
-            fz = mx * vy - my * vx
-            if heading_only:
-                d = fx * ux + fy * uy + fz * uz
-                fx = d * ux
-                fy = d * uy
-                fz = d * uz
-        else:
-            flags[1] = True
-        b[0] -= ki * (ex + fx) * dt
-        b[1] -= ki * (ey + fy) * dt
-        b[2] -= ki * (ez + fz) * dt
-        ox = gx - b[0] + kp_acc * ex + kp_mag * fx
-        oy = gy - b[1] + kp_acc * ey + kp_mag * fy
-        oz = gz - b[2] + kp_acc * ez + kp_mag * fz
-    # q <- q ⊗ exp(omega dt)
-    rx = ox * dt
-    ry = oy * dt
-    rz = oz * dt
+        flags[0] = True
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    if nm > 0.0:
+        mx /= nm
+        my /= nm
+        mz /= nm
+        # h = R_nb m
+        hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
+            + 2.0 * (x * z + w * y) * mz
+        hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
+            + 2.0 * (y * z - w * x) * mz
+        hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
+            + (1.0 - 2.0 * (x * x + y * y)) * mz
+        rn = math.sqrt(hx * hx + hy * hy)
+        # predicted magnetic direction in body: R_nb^T [0, rn, hz]
+        vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
+        vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
+        vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
+        fx = my * vz - mz * vy
+        fy = mz * vx - mx * vz
+        fz = mx * vy - my * vx
+        if heading_only:
+            d = fx * ux + fy * uy + fz * uz
+            fx = d * ux
+            fy = d * uy
+            fz = d * uz
+    else:
+        flags[1] = True
+    b[0] -= ki * (ex + fx) * dt
+    b[1] -= ki * (ey + fy) * dt
+    b[2] -= ki * (ez + fz) * dt
+    _rotate_by(q, (kp_acc * ex + kp_mag * fx) * dt, (kp_acc * ey + kp_mag * fy) * dt,
+               (kp_acc * ez + kp_mag * fz) * dt)
+
+
+@njit(cache=True)
+def _rotate_by(q, rx, ry, rz):
+    """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place (rotation vector in rad)."""
     th = math.sqrt(rx * rx + ry * ry + rz * rz)
     if th < 1e-4:
         th2 = th * th
@@ -91,6 +91,7 @@ def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
     dx = k * rx
     dy = k * ry
     dz = k * rz
+    w, x, y, z = q[0], q[1], q[2], q[3]
     nw = w * dw - x * dx - y * dy - z * dz
     nx = w * dx + x * dw + y * dz - z * dy
     ny = w * dy - x * dz + y * dw + z * dx

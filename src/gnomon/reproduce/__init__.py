@@ -41,7 +41,10 @@ def run(paper: str, out_dir: Path | None = None, quick: bool = False,
 
 
 def run_all(out_dir: Path | None = None, quick: bool = False, progress: bool = False) -> dict:
-    """Every available paper into ``out_dir/pNNN``; returns ``{paper: result or {"error": ...}}``."""
+    """Every available paper into ``out_dir/pNNN``.
+
+    Returns ``{paper: result}``, with ``{"error": ...}`` for a paper that failed.
+    """
     results = {}
     for paper in available():
         sub = None if out_dir is None else Path(out_dir) / f"p{paper}"

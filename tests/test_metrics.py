@@ -1,0 +1,61 @@
+"""Metrics on hand-computed cases."""
+
+import numpy as np
+import pytest
+
+from gnomon import metrics
+from gnomon.rotation import quat_from_euler, quat_from_rotvec, quat_mul
+
+DEG = np.pi / 180
+
+
+def test_pure_heading_error_is_heading_only():
+    q_true = quat_from_euler([0.2, -0.3, 1.0])
+    # rotate the estimate by 5 deg about the reference (ENU) vertical: q_est = q_z ⊗ q_true
+    q_est = quat_mul(quat_from_rotvec([0, 0, 5 * DEG]), q_true)
+    e = metrics.broad_errors_rad(q_true, q_est)
+    assert e["total"] == pytest.approx(5 * DEG, abs=1e-12)
+    assert e["heading"] == pytest.approx(5 * DEG, abs=1e-12)
+    assert e["inclination"] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_pure_inclination_error():
+    q_true = quat_from_euler([0.1, 0.2, -2.0])
+    q_est = quat_mul(quat_from_rotvec([3 * DEG, 0, 0]), q_true)  # about the reference x axis
+    e = metrics.broad_errors_rad(q_true, q_est)
+    assert e["total"] == pytest.approx(3 * DEG, abs=1e-12)
+    assert e["inclination"] == pytest.approx(3 * DEG, abs=1e-12)
+    assert e["heading"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_broad_definitions_by_hand():
+    # q_err = [cos 15°, 0, sin 15° sin a, sin 15° cos a] etc.: check the three formulas directly
+    w, x, y, z = 0.9, 0.1, -0.3, 0.2
+    qe = np.array([w, x, y, z]) / np.linalg.norm([w, x, y, z])
+    e = metrics.broad_errors_rad([1.0, 0, 0, 0], qe)
+    w, x, y, z = qe
+    assert e["total"] == pytest.approx(2 * np.arccos(abs(w)), abs=1e-14)
+    assert e["heading"] == pytest.approx(2 * np.arctan(abs(z / w)), abs=1e-14)
+    assert e["inclination"] == pytest.approx(2 * np.arccos(np.sqrt(w * w + z * z)), abs=1e-14)
+
+
+def test_axis_errors_small_angles_in_body_frame():
+    q_true = quat_from_euler([0.3, 0.4, 0.5])
+    small = np.array([0.01, -0.02, 0.03])
+    q_est = quat_mul(q_true, quat_from_euler(small))
+    np.testing.assert_allclose(metrics.axis_errors_rad(q_true, q_est), small, atol=1e-12)
+
+
+def test_nan_rows_propagate_and_rms_masks():
+    q_true = np.array([[1.0, 0, 0, 0], [np.nan] * 4, [1.0, 0, 0, 0]])
+    q_est = np.array([quat_from_rotvec([0.1, 0, 0]), [1.0, 0, 0, 0],
+                      quat_from_rotvec([0, 0.3, 0])])
+    a = metrics.error_angle_rad(q_true, q_est)
+    assert np.isnan(a[1])
+    assert metrics.rms(a, [True, False, True]) == pytest.approx(np.sqrt((0.01 + 0.09) / 2))
+    with pytest.raises(ValueError, match="non-finite"):
+        metrics.rms(a)
+    s = metrics.score(q_true, q_est)
+    assert s["samples"] == 2
+    assert s["total_deg"] == pytest.approx(np.degrees(np.sqrt(0.05)))
+    assert s["max_deg"] == pytest.approx(np.degrees(0.3))
