@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from numba import njit
 
 
@@ -122,3 +124,42 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
         b_out[i, 0] = b[0]
         b_out[i, 1] = b[1]
         b_out[i, 2] = b[2]
+
+
+@njit(cache=True)
+def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
+                      q_out):
+    """R independent filters over N samples, run-minor layout for SIMD over runs.
+
+    ``dt`` (N,) s shared by the runs; ``gyro``, ``acc``, ``mag`` (N, 3, R); state ``q`` (4, R),
+    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Each run follows exactly the
+    same arithmetic as ``mahony_step`` (flags are not recorded here).
+    """
+    n = dt.shape[0]
+    r_count = q.shape[1]
+    flags = np.zeros(3, np.bool_)
+    qq = np.empty(4)
+    bb = np.empty(3)
+    for i in range(n):
+        for r in range(r_count):
+            qq[0] = q[0, r]
+            qq[1] = q[1, r]
+            qq[2] = q[2, r]
+            qq[3] = q[3, r]
+            bb[0] = b[0, r]
+            bb[1] = b[1, r]
+            bb[2] = b[2, r]
+            mahony_step(qq, bb, dt[i], gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
+                        acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r],
+                        mag[i, 2, r], kp_acc, kp_mag, ki, heading_only, max_dt, flags)
+            q[0, r] = qq[0]
+            q[1, r] = qq[1]
+            q[2, r] = qq[2]
+            q[3, r] = qq[3]
+            b[0, r] = bb[0]
+            b[1, r] = bb[1]
+            b[2, r] = bb[2]
+            q_out[i, 0, r] = qq[0]
+            q_out[i, 1, r] = qq[1]
+            q_out[i, 2, r] = qq[2]
+            q_out[i, 3, r] = qq[3]
