@@ -158,6 +158,10 @@ def test_hdf5_rejects_other_files(tmp_path):
     with pytest.raises(InputError, match="field 'gyro'.*deg/s"):
         read_recording(degrees)
 
+    with pytest.raises(InputError, match="cannot write") as e:
+        write_recording(tmp_path / "no_dir" / "r.h5", rec)
+    assert "no_dir" in str(e.value)
+
     with pytest.raises(InputError, match="extra.label"):
         write_recording(tmp_path / "s.h5", Recording(t=[0, 1], gyro=np.zeros((2, 3)),
                                                      extra={"label": np.array(["a", "b"])}))

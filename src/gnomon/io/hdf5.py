@@ -34,6 +34,8 @@ when there is no ``/mag``). Datasets ``t``, ``gyro``, ``accel`` carry a
 ``unit`` attribute (``s``, ``rad/s``, ``m/s^2``) that the reader checks.
 Optional datasets are absent, never empty. A reader of a later
 ``format_version`` than it knows refuses the file with a clear message.
+Errors name the file, the dataset and, for bad values, the row as the 0-based
+sample index (``gyro[7]`` is row 7).
 """
 
 from __future__ import annotations
@@ -75,7 +77,8 @@ def write_recording(path: str | os.PathLike, rec: Recording, *,
     compression : HDF5 filter for the datasets (``"gzip"``, lossless) or ``None``.
 
     Returns the path written. Raises :class:`InputError` for an ``extra`` entry
-    that HDF5 cannot hold exactly (non-numeric dtype, or a name with ``/``).
+    that HDF5 cannot hold exactly (non-numeric dtype, or a name with ``/``) and
+    when the file cannot be created (e.g. its directory does not exist).
     """
     h5py = _h5py()
     path = Path(path)
@@ -96,6 +99,14 @@ def write_recording(path: str | os.PathLike, rec: Recording, *,
             kw = {"compression": compression, "shuffle": True}
         return group.create_dataset(name, data=data, **kw)
 
+    try:
+        _write(h5py, path, rec, put)
+    except OSError as err:
+        raise InputError(f"cannot write ({err})", file=str(path)) from None
+    return path
+
+
+def _write(h5py, path: Path, rec: Recording, put) -> None:
     with h5py.File(path, "w") as f:
         f.attrs["format"] = FORMAT_NAME
         f.attrs["format_version"] = FORMAT_VERSION
@@ -114,7 +125,6 @@ def write_recording(path: str | os.PathLike, rec: Recording, *,
         g = f.create_group("extra")
         for key, value in rec.extra.items():
             put(g, key, value)
-    return path
 
 
 def _attr_str(value) -> str:
