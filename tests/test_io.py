@@ -474,6 +474,10 @@ def test_csv_missing_column_names_file_and_column(tmp_path):
         read_csv(path)
     assert str(path) in str(e.value) and "field 'acc_z'" in str(e.value)
     assert "line 1" in str(e.value)  # the header line
+    commented = tmp_path / "numpy_savetxt.csv"  # np.savetxt's default header is a comment
+    np.savetxt(commented, _table(), delimiter=",", header=HEADER)
+    with pytest.raises(InputError, match="field 't'.*remove the '#'"):
+        read_csv(commented)
     with pytest.raises(InputError, match="field 'gz'"):
         read_csv(CSV, columns={"gyr_z": "gz"})
     with pytest.raises(InputError, match="field 'mag_z'.*incomplete"):

@@ -103,8 +103,14 @@ class _Table:
                 reader = _csv.reader(fh, delimiter=delimiter)
                 header, header_line = None, 0
                 rows, lines = [], []
+                self.comment_before_header = None
                 for cells in reader:
-                    if not cells or not "".join(cells).strip() or cells[0].lstrip().startswith("#"):
+                    if not cells or not "".join(cells).strip():
+                        continue
+                    if cells[0].lstrip().startswith("#"):
+                        if header is None:
+                            first = cells[0].lstrip()[1:]
+                            self.comment_before_header = [c.strip() for c in [first] + cells[1:]]
                         continue
                     if header is None:
                         header, header_line = [c.strip() for c in cells], reader.line_num
@@ -207,9 +213,12 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
     def require(keys, why):
         for k in keys:
             if name[k] not in have:
+                hint = ""
+                if name[k] in (table.comment_before_header or ()):
+                    hint = " (the column names seem to be in a '#' comment line; remove the '#')"
                 raise InputError(
                     f"missing column{why}; header (line {table.header_line}) has: "
-                    f"{', '.join(table.header)}", file=str(path), field=name[k])
+                    f"{', '.join(table.header)}{hint}", file=str(path), field=name[k])
 
     def optional_group(keys):
         present = [name[k] in have for k in keys]
