@@ -574,3 +574,23 @@ def test_read_bad_requests(tmp_path):
         read(H5, gyro_unit="deg/s")  # CSV options for a BROAD file
     with pytest.raises(InputError, match="field 'gyro_units'"):
         read(CSV, gyro_units="deg/s")  # misspelled option
+
+
+# ------------------------------------------- frames and units, checked by physics
+def test_broad_truth_is_sensor_to_enu_per_vqf():
+    """VQF (Laidig & Seel 2023) outputs sensor-to-ENU from rad/s, m/s^2 and any mag unit:
+    it agrees with our q_true on the real excerpts only if our frames and units are right."""
+    vqf = pytest.importorskip("vqf")
+    from gnomon.metrics import broad_errors_rad, rms_deg
+
+    for path, total_max_deg, inclination_max_deg in ((MAT, 4.0, 1.0), (H5, 20.0, 2.0)):
+        rec = read(path)
+        q_est = vqf.VQF(1.0 / rec.sample_rate_hz).updateBatch(
+            np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
+            np.ascontiguousarray(rec.mag))["quat9D"]
+        m = rec.score_mask
+        err = broad_errors_rad(rec.q_true[m], q_est[m])
+        assert rms_deg(err["total"]) < total_max_deg, path.name
+        assert rms_deg(err["inclination"]) < inclination_max_deg, path.name
+        wrong = broad_errors_rad(rec.q_true[m] * [1, -1, -1, -1], q_est[m])  # ENU-to-sensor
+        assert rms_deg(wrong["total"]) > 30.0, path.name
