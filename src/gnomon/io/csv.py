@@ -1,0 +1,300 @@
+"""Reader for generic CSV IMU logs.
+
+One header line names the columns, then one line per sample. The default
+header is::
+
+    t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z
+
+in s, rad/s, m/s² and µT. Optional columns ``q_w,q_x,q_y,q_z`` hold a truth
+quaternion ``q_rb`` ``[w, x, y, z]`` (body to reference frame, default
+``ENU``/``sensor``; empty or NaN cells mark a missing truth sample) and
+``mask`` the samples that count for scoring (``1/0``, ``true/false``).
+Blank lines and lines starting with ``#`` are skipped (before or after the header).
+
+Other layouts: ``columns`` maps gnomon's column names (the names above) to
+the names in the file, e.g. ``{"t": "time_ms", "gyr_x": "wx"}``; names not in
+the map keep their default. Units (converted to SI on reading; the
+magnetometer keeps its unit, recorded in ``Recording.mag_unit``):
+
+==============  ===========================================  ======================
+option          values                                       default
+==============  ===========================================  ======================
+``time_unit``   ``s``, ``ms``, ``us``, ``ns``                ``s``
+``gyro_unit``   ``rad/s``, ``deg/s``                         ``rad/s``
+``accel_unit``  ``m/s^2``, ``g`` (1 g = 9.80665 m/s²)        ``m/s^2``
+``mag_unit``    ``uT``, ``nT``, ``mT``, ``T``, ``gauss``     ``uT``
+==============  ===========================================  ======================
+
+Required: time, the three gyro and the three accelerometer columns. The
+magnetometer is optional (all three columns or none), so is the truth (all
+four or none) and the mask.
+
+Errors: bad input raises :class:`~gnomon.errors.InputError` naming the file,
+the column (as written in the file's header) and the row. **Row convention:**
+``row`` is the 1-based data row number, i.e. the first line after the header
+is row 1 (blank and comment lines not counted); the message also gives the
+line number in the file (1-based, header included), which is what an editor
+shows. Caught: empty file, no data rows, missing column, a row with a wrong
+number of cells, empty or non-numeric cell, NaN or infinity in a sensor or
+time column, a time stamp that does not increase strictly, an unknown unit.
+
+A gyro log whose 99th-percentile rate exceeds 35 rad/s (2000 °/s — the
+full-scale of most MEMS gyros) while read as rad/s raises a
+:class:`UnitWarning` (probably deg/s); so does an accelerometer whose median
+magnitude is near 1 while read as m/s² (probably g).
+"""
+
+from __future__ import annotations
+
+import csv as _csv
+import math
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from gnomon.errors import InputError
+from gnomon.recording import MAG_UNITS_TO_TESLA, Recording
+
+__all__ = ["read_csv", "UnitWarning", "DEFAULT_COLUMNS", "TIME_UNITS", "GYRO_UNITS",
+           "ACCEL_UNITS", "STANDARD_GRAVITY_M_S2"]
+
+STANDARD_GRAVITY_M_S2 = 9.80665  # m/s², exact by definition (CGPM 1901)
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # -> s
+GYRO_UNITS = ("rad/s", "deg/s")
+ACCEL_UNITS = {"m/s^2": 1.0, "g": STANDARD_GRAVITY_M_S2}  # -> m/s²
+
+SENSOR_GROUPS = {
+    "gyro": ("gyr_x", "gyr_y", "gyr_z"),
+    "accel": ("acc_x", "acc_y", "acc_z"),
+    "mag": ("mag_x", "mag_y", "mag_z"),
+}
+TRUTH_COLUMNS = ("q_w", "q_x", "q_y", "q_z")
+#: gnomon column names, in the order of the default header (then truth and mask)
+DEFAULT_COLUMNS = ("t",) + SENSOR_GROUPS["gyro"] + SENSOR_GROUPS["accel"] + \
+    SENSOR_GROUPS["mag"] + TRUTH_COLUMNS + ("mask",)
+
+#: gyro rates above this (99th percentile of |w|, rad/s) are implausible as rad/s
+GYRO_RAD_S_PLAUSIBLE_MAX = 35.0
+
+_TRUE = {"1", "true", "t", "yes", "y"}
+_FALSE = {"0", "false", "f", "no", "n"}
+
+
+class UnitWarning(UserWarning):
+    """The data look as if they were in another unit than the one given."""
+
+
+def _unit(option: str, value: str, allowed) -> None:
+    if value not in allowed:
+        raise InputError(f"unknown unit {value!r}; use one of {', '.join(allowed)}",
+                         field=option)
+
+
+class _Table:
+    """Cells of a CSV file as strings, with the file line of every data row."""
+
+    def __init__(self, path: Path, delimiter: str):
+        self.path = path
+        try:
+            with open(path, newline="", encoding="utf-8-sig") as fh:
+                reader = _csv.reader(fh, delimiter=delimiter)
+                header, header_line = None, 0
+                rows, lines = [], []
+                self.comment_before_header = None
+                for cells in reader:
+                    if not cells or not "".join(cells).strip():
+                        continue
+                    if cells[0].lstrip().startswith("#"):
+                        if header is None:
+                            first = cells[0].lstrip()[1:]
+                            self.comment_before_header = [c.strip() for c in [first] + cells[1:]]
+                        continue
+                    if header is None:
+                        header, header_line = [c.strip() for c in cells], reader.line_num
+                    else:
+                        rows.append(cells)
+                        lines.append(reader.line_num)
+        except UnicodeDecodeError as err:
+            raise InputError(f"not a UTF-8 text file ({err.reason} at byte {err.start})",
+                             file=str(path)) from None
+        except _csv.Error as err:
+            raise InputError(f"malformed CSV ({err})", file=str(path)) from None
+        if header is None:
+            raise InputError("empty file: no header line", file=str(path))
+        if not rows:
+            raise InputError(f"no data rows after the header (line {header_line})",
+                             file=str(path))
+        self.header, self.header_line = header, header_line
+        self.rows, self.lines = rows, np.asarray(lines)
+        lengths = np.fromiter((len(r) for r in rows), int, len(rows))
+        bad = np.flatnonzero(lengths != len(header))
+        if bad.size:
+            i = int(bad[0])
+            short = lengths[i] < len(header)
+            raise InputError(
+                f"{lengths[i]} cells, header has {len(header)} (line {lines[i]})",
+                file=str(path), field=header[lengths[i]] if short else None, row=i + 1)
+
+    def error(self, message: str, column: str, i: int | None) -> InputError:
+        """An InputError at data row index ``i`` (0-based) of ``column``."""
+        if i is None:
+            return InputError(message, file=str(self.path), field=column)
+        return InputError(f"{message} (line {int(self.lines[i])})", file=str(self.path),
+                          field=column, row=i + 1)
+
+    def strings(self, column: str) -> np.ndarray:
+        j = self.header.index(column)
+        return np.array([r[j].strip() for r in self.rows], dtype=str)
+
+    def numbers(self, column: str, *, allow_missing: bool = False) -> np.ndarray:
+        """Column as float; a bad cell raises naming column and row."""
+        s = self.strings(column)
+        if allow_missing:
+            s = np.where(s == "", "nan", s)
+        try:
+            values = s.astype(float)
+        except ValueError:
+            for i, cell in enumerate(s):
+                try:
+                    float(cell)
+                except ValueError:
+                    what = "empty cell" if cell == "" else f"not a number: {str(cell)!r}"
+                    raise self.error(what, column, i) from None
+            raise  # pragma: no cover - astype and float disagree
+        if not allow_missing:
+            bad = ~np.isfinite(values)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise self.error(f"non-finite value {str(s[i])!r}", column, i)
+        return values
+
+
+def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: str = "rad/s",
+             accel_unit: str = "m/s^2", mag_unit: str = "uT", time_unit: str = "s",
+             delimiter: str = ",", *, frames: dict | None = None,
+             source: str | None = None) -> Recording:
+    """Read a CSV IMU log (module docstring for the layout, units and errors).
+
+    Parameters
+    ----------
+    path : the CSV file.
+    columns : gnomon column name -> column name in the file, for the columns
+        whose names differ from the default header (``DEFAULT_COLUMNS``).
+    gyro_unit, accel_unit, mag_unit, time_unit : units of the file's columns.
+    delimiter : cell separator (one character, e.g. ``","``, ``";"``, ``"\\t"``).
+    frames : frame names for the truth (default ``{"reference": "ENU", "body": "sensor"}``).
+    source : description of the data; default the file name's stem.
+
+    Returns a :class:`Recording` in SI units (``t`` s, ``gyro`` rad/s,
+    ``accel`` m/s²; ``mag`` in ``mag_unit``).
+    """
+    _unit("time_unit", time_unit, tuple(TIME_UNITS))
+    _unit("gyro_unit", gyro_unit, GYRO_UNITS)
+    _unit("accel_unit", accel_unit, tuple(ACCEL_UNITS))
+    _unit("mag_unit", mag_unit, tuple(MAG_UNITS_TO_TESLA))
+    if not isinstance(delimiter, str) or len(delimiter) != 1:
+        raise InputError(f"expected one character, got {delimiter!r}", field="delimiter")
+    columns = dict(columns or {})
+    unknown = sorted(set(columns) - set(DEFAULT_COLUMNS))
+    if unknown:
+        raise InputError(f"unknown gnomon column name(s) {unknown}; known: "
+                         f"{', '.join(DEFAULT_COLUMNS)}", field="columns")
+    name = {k: str(columns.get(k, k)) for k in DEFAULT_COLUMNS}  # gnomon -> file column
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", file=str(path))
+    table = _Table(path, delimiter)
+    have = set(table.header)
+
+    def require(keys, why):
+        for k in keys:
+            if name[k] not in have:
+                hint = ""
+                if name[k] in (table.comment_before_header or ()):
+                    hint = " (the column names seem to be in a '#' comment line; remove the '#')"
+                raise InputError(
+                    f"missing column{why}; header (line {table.header_line}) has: "
+                    f"{', '.join(table.header)}{hint}", file=str(path), field=name[k])
+
+    def optional_group(keys):
+        present = [name[k] in have for k in keys]
+        if any(k in columns for k in keys):  # asked for explicitly
+            require(keys, " (given in 'columns')")
+        elif any(present) and not all(present):
+            require(keys, f" (the group {', '.join(name[k] for k in keys)} is incomplete)")
+        return all(name[k] in have for k in keys)
+
+    require(("t",) + SENSOR_GROUPS["gyro"] + SENSOR_GROUPS["accel"], "")
+    has_mag = optional_group(SENSOR_GROUPS["mag"])
+    has_truth = optional_group(TRUTH_COLUMNS)
+    has_mask = optional_group(("mask",))
+
+    t_raw = table.numbers(name["t"])
+    dt = np.diff(t_raw)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0)) + 1
+        raise table.error(f"time stamps must increase strictly: {float(t_raw[i])!r} after "
+                          f"{float(t_raw[i - 1])!r}", name["t"], i)
+    t = t_raw * TIME_UNITS[time_unit]
+
+    def group(key):
+        return np.column_stack([table.numbers(name[k]) for k in SENSOR_GROUPS[key]])
+
+    gyro = group("gyro")
+    if gyro_unit == "deg/s":
+        gyro = np.deg2rad(gyro)
+    accel = group("accel") * ACCEL_UNITS[accel_unit]
+    mag = group("mag") if has_mag else None
+    q_true = None
+    if has_truth:
+        q_true = np.column_stack([table.numbers(name[k], allow_missing=True)
+                                  for k in TRUTH_COLUMNS])
+        q_true[~np.isfinite(q_true).all(axis=1)] = np.nan  # missing sample: whole row NaN
+    mask = None
+    if has_mask:
+        s = np.char.lower(table.strings(name["mask"]))
+        is_true, is_false = np.isin(s, list(_TRUE)), np.isin(s, list(_FALSE))
+        if not np.all(is_true | is_false):
+            i = int(np.argmax(~(is_true | is_false)))
+            raise table.error(f"expected 1/0 or true/false, got {str(s[i])!r}", name["mask"],
+                              i)
+        mask = is_true
+
+    _plausibility(path, gyro, gyro_unit, accel, accel_unit)
+    field_to_column = {"t": name["t"], "gyro": ",".join(name[k] for k in SENSOR_GROUPS["gyro"]),
+                       "accel": ",".join(name[k] for k in SENSOR_GROUPS["accel"]),
+                       "mag": ",".join(name[k] for k in SENSOR_GROUPS["mag"]),
+                       "q_true": ",".join(name[k] for k in TRUTH_COLUMNS),
+                       "mask": name["mask"]}
+    try:
+        return Recording(
+            t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true, mask=mask,
+            frames=frames if frames is not None else {"reference": "ENU", "body": "sensor"},
+            source=path.stem if source is None else str(source),
+        )
+    except InputError as err:
+        column = field_to_column.get(err.field, err.field)
+        raise table.error(err.message, column, err.row) from None
+
+
+def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarray,
+                  accel_unit: str) -> None:
+    """Warn (:class:`UnitWarning`) when the data look like another unit than declared."""
+    if gyro_unit == "rad/s":
+        p99 = float(np.percentile(np.linalg.norm(gyro, axis=1), 99))
+        if p99 > GYRO_RAD_S_PLAUSIBLE_MAX:
+            warnings.warn(
+                f"{path}: gyro 99th-percentile rate {p99:.1f} rad/s "
+                f"({math.degrees(p99):.0f} deg/s) is implausible; are the gyro columns "
+                f"in deg/s? Then pass gyro_unit='deg/s'.", UnitWarning, stacklevel=3)
+    if accel_unit == "m/s^2":
+        med = float(np.median(np.linalg.norm(accel, axis=1)))
+        if 0.5 < med < 1.5:
+            warnings.warn(
+                f"{path}: median accelerometer magnitude {med:.3f} m/s^2 is near 1; are the "
+                f"accelerometer columns in g? Then pass accel_unit='g'.", UnitWarning,
+                stacklevel=3)
