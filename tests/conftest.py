@@ -35,3 +35,15 @@ def synthetic_imu(q0_nb, w_b, n=2000, fs=100.0, gyro_bias=(0, 0, 0), noise=0.0, 
 @pytest.fixture
 def imu_factory():
     return synthetic_imu
+
+
+@pytest.fixture(scope="session")
+def full_broad():
+    """The full BROAD data directory, or a clear skip (setting: GNOMON_BROAD_DIR)."""
+    from gnomon.datasets import broad_dir
+
+    d = broad_dir()
+    if d is None:
+        pytest.skip("full BROAD data not found: set GNOMON_BROAD_DIR (default "
+                    "../shared/data/broad beside the repository)")
+    return d

@@ -9,7 +9,6 @@ up, for git worktrees under ``wt/``).
 
 from __future__ import annotations
 
-import os
 import shutil
 import warnings
 from pathlib import Path
@@ -19,6 +18,7 @@ import numpy as np
 import pytest
 import scipy.io
 
+from gnomon.datasets import broad_dir
 from gnomon.errors import InputError
 from gnomon.io import (
     UnitWarning,
@@ -45,10 +45,7 @@ HEADER = "t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z"
 
 
 def full_broad_dir() -> Path | None:
-    env = os.environ.get("GNOMON_BROAD_DIR")
-    candidates = [Path(env)] if env else [ROOT.parent / "shared" / "data" / "broad",
-                                          ROOT.parent.parent / "shared" / "data" / "broad"]
-    return next((p for p in candidates if p.is_dir()), None)
+    return broad_dir()
 
 
 def needs_full_broad() -> Path:

@@ -1,0 +1,135 @@
+"""The command line: JSON contracts, and bad input as one line with file, field and row."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gnomon.cli import main
+
+DATA = Path(__file__).parent / "data"
+EXCERPTS = DATA / "broad"
+
+
+def run_cli(*args):
+    """Run ``gnomon`` in a subprocess: exit code, stdout, stderr."""
+    p = subprocess.run([sys.executable, "-m", "gnomon.cli", *map(str, args)],
+                       capture_output=True, text=True, timeout=300)
+    return p.returncode, p.stdout, p.stderr
+
+
+def test_version_and_filters(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert capsys.readouterr().out.startswith("gnomon ")
+    assert main(["filters", "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    mahony = next(f for f in table if f["name"] == "mahony")
+    assert {p["name"] for p in mahony["params"]} >= {"kp_acc_rad_s", "ki_per_s"}
+
+
+def test_benchmark_broad_json_contract(capsys):
+    assert main(["benchmark", "broad", "--data", EXCERPTS, "--filters", "mahony",
+                 "--anchors", "vqf", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["metric"] == "broad"
+    assert {(r["trial"], r["method"]) for r in out["trials"]} == {
+        (t, m) for t in ("01_undisturbed_slow_rotation_A_excerpt",
+                         "32_disturbed_attached_magnet_1cm_excerpt") for m in ("mahony", "vqf")}
+    for r in out["trials"]:
+        assert set(r) >= {"trial", "method", "total_deg", "heading_deg", "inclination_deg"}
+    for m in ("mahony", "vqf"):
+        mean = out["mean"][m]
+        assert mean["trials"] == 2
+        per = [r["total_deg"] for r in out["trials"] if r["method"] == m]
+        assert mean["total_deg"] == pytest.approx(np.mean(per))
+    assert out["groups"]["vqf"]["attached_magnet"]["trials"] == 1
+
+
+def test_estimate_with_truth_writes_outputs(tmp_path, capsys):
+    trial = EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat"
+    out_csv, out_h5, plot = tmp_path / "e.csv", tmp_path / "e.h5", tmp_path / "e.png"
+    assert main(["estimate", trial, "--param", "kp_acc_rad_s=0.5", "--out", out_csv,
+                 "--plot", plot, "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["params"]["kp_acc_rad_s"] == 0.5
+    assert 0 < summary["errors"]["total_deg"] < 10
+    data = np.loadtxt(out_csv, delimiter=",", skiprows=1)
+    assert data.shape[1] >= 5
+    np.testing.assert_allclose(np.linalg.norm(data[:, 1:5], axis=1), 1, atol=1e-8)
+    assert plot.stat().st_size > 10_000
+    assert main(["estimate", trial, "--out", out_h5]) == 0
+    assert "inclination" in capsys.readouterr().out
+
+
+def _csv(path, rows, header="t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z"):
+    path.write_text(header + "\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    return path
+
+
+GOOD = [[i * 0.01, 0, 0, 0, 0, 0, 9.81, 0, 20, -40] for i in range(20)]
+
+
+@pytest.mark.parametrize(
+    "case, expect",
+    [
+        ("nan", ["bad.csv", "gyr_y", "row 6"]),
+        ("time", ["bad.csv", "'t'", "row 9"]),
+        ("column", ["bad.csv", "acc_z"]),
+        ("missing", ["nope.csv", "no such file"]),
+        ("broad_field", ["broken.hdf5", "imu_mag"]),
+    ],
+)
+def test_bad_input_is_one_line_without_traceback(tmp_path, case, expect):
+    rows = [list(r) for r in GOOD]
+    if case == "nan":
+        rows[5][2] = "nan"
+        path = _csv(tmp_path / "bad.csv", rows)
+    elif case == "time":
+        rows[8][0] = rows[7][0]
+        path = _csv(tmp_path / "bad.csv", rows)
+    elif case == "column":
+        path = _csv(tmp_path / "bad.csv", [r[:6] + r[7:] for r in rows],
+                    header="t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,mag_x,mag_y,mag_z")
+    elif case == "missing":
+        path = tmp_path / "nope.csv"
+    else:
+        import h5py
+
+        path = tmp_path / "broken.hdf5"
+        with h5py.File(EXCERPTS / "32_disturbed_attached_magnet_1cm_excerpt.hdf5") as src, \
+                h5py.File(path, "w") as dst:
+            for k in src:
+                if k != "imu_mag":
+                    src.copy(k, dst)
+            dst.attrs.update(dict(src.attrs))
+    code, out, err = run_cli("estimate", path)
+    assert code == 2
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    for word in expect:
+        assert word in lines[0], (word, lines[0])
+
+
+def test_unknown_filter_and_param(tmp_path):
+    trial = EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat"
+    code, _, err = run_cli("estimate", trial, "--filter", "nosuch")
+    assert code == 2 and "nosuch" in err and "Traceback" not in err
+    code, _, err = run_cli("estimate", trial, "--param", "kp=1")
+    assert code == 2 and "'kp'" in err
+
+
+def test_reference_libraries_match_published_broad_scores(full_broad):
+    """The metric and the adapters: published means on the 15 trials within 0.05 deg."""
+    from gnomon.benchmark import run_broad
+
+    res = run_broad(full_broad, filters=[], anchors=["vqf", "imufusion", "ahrs-madgwick"])
+    assert len({r["trial"] for r in res["trials"]}) == 15
+    published = {"vqf": 2.67, "imufusion": 14.1, "ahrs-madgwick": 5.62}
+    for name, value in published.items():
+        assert res["mean"][name]["total_deg"] == pytest.approx(value, abs=0.05), name
