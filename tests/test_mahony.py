@@ -81,3 +81,16 @@ def test_needs_magnetometer():
     rec = Recording(t=np.arange(10.0), gyro=np.zeros((10, 3)), accel=np.ones((10, 3)))
     with pytest.raises(InputError, match="'mag'"):
         Mahony().run(rec)
+
+
+def test_batch_over_runs_equals_single_runs(imu_factory):
+    from gnomon.estimators.mahony import run_batch
+
+    recs = [imu_factory(quat_from_euler([0.1 * k, -0.2, 1.0 + k]), [0.2, -0.1 * k, 0.3],
+                        n=500, noise=0.01, seed=k) for k in range(5)]
+    params = MahonyParams(kp_acc_rad_s=0.8, ki_per_s=0.05)
+    q = run_batch(recs[0].t, np.stack([r.gyro for r in recs]), np.stack([r.accel for r in recs]),
+                  np.stack([r.mag for r in recs]), params)
+    assert q.shape == (5, 500, 4)
+    for k, rec in enumerate(recs):
+        np.testing.assert_allclose(q[k], Mahony(params).run(rec).q, atol=1e-12)

@@ -189,6 +189,19 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    """``gnomon.bench.run_bench(samples, repeats, runs, quick)``."""
+    from gnomon.bench import markdown_table, run_bench
+
+    res = run_bench(samples=args.samples, repeats=args.repeats, runs=args.runs, quick=args.quick,
+                    progress=not args.json)
+    if args.json:
+        print_json(res)
+    else:
+        print(markdown_table(res))
+    return 0
+
+
 # ------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -227,6 +240,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", help="write a per-trial bar chart, e.g. broad.png")
     s.add_argument("--json", action="store_true", help="print the JSON result")
     s.set_defaults(func=cmd_benchmark)
+
+    s = sub.add_parser("bench", help="speed of gnomon's filters vs the reference libraries")
+    s.add_argument("--samples", type=int, default=1_000_000, help="samples in the recording")
+    s.add_argument("--repeats", type=int, default=5, help="interleaved repetitions (median)")
+    s.add_argument("--runs", type=int, default=1000, help="runs of the batch-over-runs kernel")
+    s.add_argument("--quick", action="store_true", help="200,000 samples, 3 repeats")
+    s.add_argument("--json", action="store_true", help="print the JSON result")
+    s.set_defaults(func=cmd_bench)
 
     available = [n for n in PAPERS
                  if importlib.util.find_spec(f"gnomon.reproduce.p{n}") is not None]

@@ -23,28 +23,30 @@ __all__ = ["attitude_from_acc_mag", "initial_attitude"]
 
 
 def attitude_from_acc_mag(acc_b, mag_b=None) -> np.ndarray:
-    """``q_nb`` (ENU from body) from one accelerometer and (optional) magnetometer vector.
+    """``q_nb`` (ENU from body) from accelerometer and (optional) magnetometer vectors.
 
-    ``acc_b`` (3,) any unit, pointing up at rest; ``mag_b`` (3,) any unit.
-    Without ``mag_b`` (or with a field parallel to gravity) the yaw is zero.
-    Raises ``InputError`` for a zero accelerometer vector.
+    ``acc_b`` (..., 3) any unit, pointing up at rest; ``mag_b`` (..., 3) any unit.
+    Returns (..., 4). Without ``mag_b`` (or where the field is parallel to
+    gravity) the yaw is zero. Raises ``InputError`` for a zero accelerometer vector.
     """
     a = as_vec3(acc_b, "acc_b")
-    na = np.linalg.norm(a)
-    if na == 0.0:
+    na = np.linalg.norm(a, axis=-1, keepdims=True)
+    if np.any(na == 0.0):
         raise InputError("zero accelerometer vector: cannot find the vertical", field="accel")
     u = a / na
-    if mag_b is not None:
-        m = as_vec3(mag_b, "mag_b")
-        e = np.cross(m, u)
-        ne = np.linalg.norm(e)
-        if ne > 1e-9 * max(np.linalg.norm(m), 1e-300):
-            e = e / ne
-            n = np.cross(u, e)
-            return quat_from_dcm(np.stack([e, n, u]))
-    roll = np.arctan2(u[1], u[2])
-    pitch = np.arctan2(-u[0], np.hypot(u[1], u[2]))
-    return quat_from_euler([roll, pitch, 0.0])
+    roll = np.arctan2(u[..., 1], u[..., 2])
+    pitch = np.arctan2(-u[..., 0], np.hypot(u[..., 1], u[..., 2]))
+    q_tilt = quat_from_euler(np.stack([roll, pitch, np.zeros_like(roll)], -1))
+    if mag_b is None:
+        return q_tilt
+    m = as_vec3(mag_b, "mag_b")
+    e = np.cross(m, u)
+    ne = np.linalg.norm(e, axis=-1, keepdims=True)
+    ok = ne > 1e-9 * np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-300)
+    e = e / np.where(ok, ne, 1.0)
+    n = np.cross(u, e)
+    q_full = quat_from_dcm(np.stack([e, n, u], axis=-2))
+    return np.where(ok, q_full, q_tilt)
 
 
 def initial_attitude(acc, mag=None, samples: int = 1) -> np.ndarray:

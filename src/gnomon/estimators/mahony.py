@@ -39,12 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
-from gnomon.estimators.initial import initial_attitude
+from gnomon.estimators.initial import attitude_from_acc_mag, initial_attitude
 from gnomon.recording import Recording
 from gnomon.rotation import quat_from_rotvec, quat_mul, quat_rotate
 
-__all__ = ["MahonyParams", "Mahony"]
+__all__ = ["MahonyParams", "Mahony", "run_batch"]
 
 
 @dataclass(frozen=True)
@@ -149,3 +150,42 @@ class Mahony(Estimator):
             signals={"bias_rad_s": b_out, "acc_skipped": flags[:, 0],
                      "mag_skipped": flags[:, 1], "gap": flags[:, 2]},
         )
+
+
+def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None) -> np.ndarray:
+    """R independent Mahony filters in one compiled call (Monte Carlo runs, parameter sweeps).
+
+    ``t`` (N,) s shared by the runs; ``gyro`` (R, N, 3) rad/s, ``acc``, ``mag`` (R, N, 3)
+    body frame; ``q0`` (R, 4) initial ``q_nb`` (default: from each run's first samples).
+    Returns ``q_nb`` (R, N, 4). The kernel loops over runs innermost: arrays whose
+    memory is run-minor (an (N, 3, R) C array seen through ``.transpose(2, 0, 1)``)
+    are used without a copy; others are copied into that layout once.
+    """
+    from gnomon.kernels.mahony import mahony_batch_runs
+
+    p = params or MahonyParams()
+    t = np.asarray(t, dtype=float)
+    arrays = []
+    for name, x in (("gyro", gyro), ("acc", acc), ("mag", mag)):
+        x = np.asarray(x, dtype=float)
+        if x.ndim != 3 or x.shape[2] != 3 or x.shape[1] != t.size:
+            raise InputError(f"expected shape (R, {t.size}, 3), got {x.shape}", field=name)
+        arrays.append(np.ascontiguousarray(x.transpose(1, 2, 0)))
+    g, a, m = arrays
+    r = g.shape[2]
+    if q0 is None:
+        q0 = initial_attitude_batch(a[: p.init_samples], m[: p.init_samples])
+    q = np.ascontiguousarray(np.asarray(q0, dtype=float).reshape(r, 4).T)
+    b = np.zeros((3, r))
+    dt = np.empty(t.size)
+    dt[0] = 0.0
+    dt[1:] = np.diff(t)
+    out = np.empty((t.size, 4, r))
+    mahony_batch_runs(dt, g, a, m, q, b, p.kp_acc_rad_s, p.kp_mag_rad_s, p.ki_per_s,
+                      p.mag_heading_only, p.max_dt_s, out)
+    return out.transpose(2, 0, 1)
+
+
+def initial_attitude_batch(acc, mag) -> np.ndarray:
+    """``q_nb`` (R, 4) from the mean over the first axis of run-minor ``acc``, ``mag`` (k, 3, R)."""
+    return attitude_from_acc_mag(acc.mean(axis=0).T, mag.mean(axis=0).T)

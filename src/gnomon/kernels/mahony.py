@@ -13,17 +13,17 @@ from numba import njit
 
 @njit(cache=True, fastmath=False)
 def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
-                kp_acc, kp_mag, ki, heading_only, max_dt, flags):
-    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias; flags (3,) acc/mag/gap."""
-    flags[0] = False
-    flags[1] = False
-    flags[2] = False
+                kp_acc, kp_mag, ki, heading_only, max_dt):
+    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias.
+
+    Returns flags as bits: 1 accelerometer skipped, 2 magnetometer skipped, 4 gap.
+    """
+    flags = 0
     if dt <= 0.0:
-        return
+        return flags
     _rotate_by(q, (gx - b[0]) * dt, (gy - b[1]) * dt, (gz - b[2]) * dt)
     if dt > max_dt:
-        flags[2] = True
-        return
+        return 4
     w, x, y, z = q[0], q[1], q[2], q[3]
     # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
     ux = 2.0 * (x * z - w * y)
@@ -41,7 +41,7 @@ def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
         ey = az * ux - ax * uz
         ez = ax * uy - ay * ux
     else:
-        flags[0] = True
+        flags |= 1
     fx = 0.0
     fy = 0.0
     fz = 0.0
@@ -71,24 +71,30 @@ def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
             fy = d * uy
             fz = d * uz
     else:
-        flags[1] = True
+        flags |= 2
     b[0] -= ki * (ex + fx) * dt
     b[1] -= ki * (ey + fy) * dt
     b[2] -= ki * (ez + fz) * dt
     _rotate_by(q, (kp_acc * ex + kp_mag * fx) * dt, (kp_acc * ey + kp_mag * fy) * dt,
                (kp_acc * ez + kp_mag * fz) * dt)
+    return flags
 
 
 @njit(cache=True)
 def _rotate_by(q, rx, ry, rz):
     """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place (rotation vector in rad)."""
-    th = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if th < 1e-4:
-        th2 = th * th
-        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
+    th2 = rx * rx + ry * ry + rz * rz
+    if th2 < 0.0025:
+        # |r| < 0.05 rad: Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸; the first omitted
+        # terms are below 1e-22, so this equals the trigonometric form to double precision
+        dw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
+                                                               - th2 / 10321920.0)))
+        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0
+                                                              - th2 / 185794560.0)))
     else:
+        th = math.sqrt(th2)
+        dw = math.cos(0.5 * th)
         k = math.sin(0.5 * th) / th
-    dw = math.cos(0.5 * th)
     dx = k * rx
     dy = k * ry
     dz = k * rz
@@ -113,9 +119,12 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
     """
     n = dt.shape[0]
     for i in range(n):
-        mahony_step(q, b, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
-                    acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
-                    heading_only, max_dt, flags[i])
+        f = mahony_step(q, b, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
+                        acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
+                        heading_only, max_dt)
+        flags[i, 0] = (f & 1) != 0
+        flags[i, 1] = (f & 2) != 0
+        flags[i, 2] = (f & 4) != 0
         q_out[i, 0] = q[0]
         q_out[i, 1] = q[1]
         q_out[i, 2] = q[2]
@@ -136,7 +145,6 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
     """
     n = dt.shape[0]
     r_count = q.shape[1]
-    flags = np.zeros(3, np.bool_)
     qq = np.empty(4)
     bb = np.empty(3)
     for i in range(n):
@@ -150,7 +158,7 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
             bb[2] = b[2, r]
             mahony_step(qq, bb, dt[i], gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
                         acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r],
-                        mag[i, 2, r], kp_acc, kp_mag, ki, heading_only, max_dt, flags)
+                        mag[i, 2, r], kp_acc, kp_mag, ki, heading_only, max_dt)
             q[0, r] = qq[0]
             q[1, r] = qq[1]
             q[2, r] = qq[2]

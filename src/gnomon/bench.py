@@ -1,0 +1,142 @@
+"""Speed of gnomon's filters against the reference libraries, measured in one run.
+
+``run_bench`` simulates one 9-axis IMU recording (``gnomon.simulation.ahrs``,
+100 Hz, smooth random rotation, MEMS noise) and times, interleaved over
+``repeats`` rounds (median per method, compilation excluded by a warm-up call):
+
+* every registered gnomon filter that runs on gyro + accelerometer + magnetometer
+  (its batch ``run(recording)``, compiled kernels);
+* ``gnomon-batch-mahony-R{runs}``: ``R`` independent Mahony filters in one call
+  (``gnomon.estimators.mahony.run_batch``), one Monte Carlo run per filter;
+* when installed: ``vqf-batch`` and ``basicvqf-batch`` (``updateBatch``, C++),
+  ``imufusion`` (one ``update`` call per sample from Python, as users run it) and
+  ``ahrs-madgwick`` (pure Python). Slow methods are timed on a prefix of the
+  recording (``samples_timed`` says how many samples).
+
+Result (``gnomon bench --json``)::
+
+    {"samples": int, "repeats": int,
+     "results": {NAME: {"samples_per_s": float, "ratio_to_vqf_batch": float,
+                        "samples_timed": int}}}
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import platform
+import time
+
+import numpy as np
+
+__all__ = ["run_bench"]
+
+_IMU_NEEDS = {"gyro", "accel", "mag"}
+
+
+def _recording(samples: int, seed: int = 0):
+    from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs
+
+    p = AhrsSimParams(duration_s=(samples - 1) / 100.0, rate_hz=100.0, substeps=1)
+    return simulate_ahrs(p, np.random.default_rng(seed))
+
+
+def _methods(rec, runs: int):
+    """name -> (callable, samples it processes)."""
+    from gnomon.estimators import registry
+
+    methods = {}
+    for name in registry.names():
+        cls = registry.get(name)
+        if set(cls.needs) <= _IMU_NEEDS:
+            methods[name] = (lambda cls=cls: cls().run(rec), len(rec))
+
+    # batch over runs: R filters, each fed the same motion with its own noise realisation
+    from gnomon.estimators.mahony import Mahony, run_batch
+
+    n_each = max(2, min(len(rec), 10_000_000 // runs))
+    rng = np.random.default_rng(1)
+    gyro = np.empty((n_each, 3, runs))
+    gyro[:] = rec.gyro[:n_each, :, None]
+    gyro += rng.normal(0.0, 0.003, gyro.shape)
+    acc = np.empty_like(gyro)
+    acc[:] = rec.accel[:n_each, :, None]
+    mag = np.empty_like(gyro)
+    mag[:] = rec.mag[:n_each, :, None]
+    t = rec.t[:n_each]
+    # (R, N, 3) views of run-minor arrays: run_batch uses them without a copy
+    g_r, a_r, m_r = (x.transpose(2, 0, 1) for x in (gyro, acc, mag))
+    params = Mahony.Params()
+    methods[f"gnomon-batch-mahony-R{runs}"] = (
+        lambda: run_batch(t, g_r, a_r, m_r, params), n_each * runs)
+
+    gyr = np.ascontiguousarray(rec.gyro)
+    accel = np.ascontiguousarray(rec.accel)
+    magn = np.ascontiguousarray(rec.mag)
+    ts = 1.0 / rec.sample_rate_hz
+    if importlib.util.find_spec("vqf") is not None:
+        import vqf
+
+        methods["vqf-batch"] = (lambda: vqf.VQF(ts).updateBatch(gyr, accel, magn), len(rec))
+        methods["basicvqf-batch"] = (
+            lambda: vqf.BasicVQF(ts).updateBatch(gyr, accel, magn), len(rec))
+    from gnomon.recording import Recording
+
+    def prefix(n):
+        n = min(n, len(rec))
+        return Recording(t=rec.t[:n], gyro=rec.gyro[:n], accel=rec.accel[:n], mag=rec.mag[:n])
+
+    if importlib.util.find_spec("imufusion") is not None:
+        from gnomon.anchors import run_imufusion
+
+        short = prefix(200_000)
+        methods["imufusion"] = (lambda: run_imufusion(short), len(short))
+    if importlib.util.find_spec("ahrs") is not None:
+        from gnomon.anchors import run_ahrs_madgwick
+
+        tiny = prefix(20_000)
+        methods["ahrs-madgwick"] = (lambda: run_ahrs_madgwick(tiny), len(tiny))
+    return methods
+
+
+def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
+              quick: bool = False, progress: bool = False) -> dict:
+    """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats."""
+    if quick:
+        samples, repeats = min(samples, 200_000), min(repeats, 3)
+    rec = _recording(samples)
+    methods = _methods(rec, runs)
+    for fn, _ in methods.values():  # warm-up: compilation and caches
+        fn()
+    times: dict[str, list[float]] = {name: [] for name in methods}
+    for _ in range(repeats):
+        for name, (fn, _) in methods.items():
+            t0 = time.perf_counter()
+            fn()
+            times[name].append(time.perf_counter() - t0)
+            if progress:
+                print(f"  {name}: {methods[name][1] / times[name][-1] / 1e6:.2f} M samples/s",
+                      flush=True)
+    rates = {name: methods[name][1] / float(np.median(v)) for name, v in times.items()}
+    ref = rates.get("vqf-batch")
+    results = {name: {"samples_per_s": rate,
+                      "ratio_to_vqf_batch": (rate / ref) if ref else float("nan"),
+                      "samples_timed": methods[name][1]}
+               for name, rate in rates.items()}
+    return {"samples": len(rec), "repeats": repeats, "results": results,
+            "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
+                        "processor": platform.processor() or platform.machine()}}
+
+
+def markdown_table(res: dict) -> str:
+    """The result as a Markdown table, fastest first (the README's table is made by this)."""
+    rows = sorted(res["results"].items(), key=lambda kv: -kv[1]["samples_per_s"])
+    lines = [f"Measured by `gnomon bench` ({res['samples']:,} samples, median of "
+             f"{res['repeats']}, {res['machine']['cpu_count']} cores, "
+             f"Python {res['machine']['python']}):", "",
+             "| method | million samples/s | ratio to VQF updateBatch |",
+             "| --- | ---: | ---: |"]
+    for name, r in rows:
+        lines.append(f"| {name} | {r['samples_per_s'] / 1e6:.2f} | "
+                     f"{r['ratio_to_vqf_batch']:.2f} |")
+    return "\n".join(lines)
