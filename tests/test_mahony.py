@@ -94,3 +94,16 @@ def test_batch_over_runs_equals_single_runs(imu_factory):
     assert q.shape == (5, 500, 4)
     for k, rec in enumerate(recs):
         np.testing.assert_allclose(q[k], Mahony(params).run(rec).q, atol=1e-12)
+
+
+def test_split_run_with_saved_state_equals_whole_run(imu_factory):
+    rec = imu_factory(quat_from_euler([0.3, 0.1, -0.5]), [0.3, 0.2, -0.1], n=2000, noise=0.01)
+    whole = Mahony().run(rec).q
+    first = Mahony()
+    a = first.run(rec.slice(0, 1234)).q
+    resumed = Mahony()
+    resumed.set_state(first.get_state())
+    b = resumed.run(rec.slice(1234, len(rec))).q
+    np.testing.assert_array_equal(np.vstack([a, b]), whole)
+    with pytest.raises(InputError, match="not after"):
+        resumed.run(rec.slice(0, 10))

@@ -130,6 +130,8 @@ class Estimator:
     Params: ClassVar[type[Params]] = Params
     #: Recording fields the filter needs (checked by ``run`` with a clear error).
     needs: ClassVar[tuple[str, ...]] = ("gyro",)
+    #: Attributes that make up the evolving state (saved by ``get_state``).
+    state_fields: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: Params | None = None, **overrides):
         if params is None:
@@ -146,6 +148,34 @@ class Estimator:
 
     def run(self, rec: Recording) -> Estimate:  # pragma: no cover - every filter overrides
         raise NotImplementedError
+
+    def get_state(self) -> dict:
+        """A copy of the evolving state; ``set_state`` on a fresh instance resumes exactly."""
+        import copy
+
+        return {name: copy.deepcopy(getattr(self, name)) for name in self.state_fields}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from ``get_state`` (unknown or missing names raise)."""
+        import copy
+
+        if set(state) != set(self.state_fields):
+            raise InputError(f"expected state fields {sorted(self.state_fields)}, "
+                             f"got {sorted(state)}", field="state")
+        for name, value in state.items():
+            setattr(self, name, copy.deepcopy(value))
+
+    def first_dt(self, rec: Recording) -> float:
+        """Interval before ``rec``'s first sample: 0 for a fresh filter, else since the last
+        sample this filter processed (so a run split in two equals the whole run)."""
+        t_last = getattr(self, "t_last", None)
+        if t_last is None:
+            return 0.0
+        dt = float(rec.t[0] - t_last)
+        if dt <= 0.0:
+            raise InputError(f"recording starts at t = {rec.t[0]!r}, not after the filter's "
+                             f"last sample t = {t_last!r}", field="t", row=0)
+        return dt
 
     def check_inputs(self, rec: Recording) -> None:
         """Raise ``InputError`` naming the first field the filter needs that ``rec`` lacks."""

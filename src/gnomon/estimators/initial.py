@@ -50,8 +50,22 @@ def attitude_from_acc_mag(acc_b, mag_b=None) -> np.ndarray:
 
 
 def initial_attitude(acc, mag=None, samples: int = 1) -> np.ndarray:
-    """``q_nb`` from the mean of the first ``samples`` rows of ``acc`` (N, 3) and ``mag`` (N, 3)."""
+    """``q_nb`` from the mean of the first ``samples`` usable rows of ``acc`` and ``mag`` (N, 3).
+
+    Rows with a zero or non-finite vector are skipped (a sensor that starts with a
+    dropout); with no usable accelerometer row at all the identity is returned,
+    and without a usable magnetometer row the yaw is zero.
+    """
     k = max(1, int(samples))
-    a = np.mean(np.asarray(acc, float)[:k], axis=0)
-    m = None if mag is None else np.mean(np.asarray(mag, float)[:k], axis=0)
+    acc = np.asarray(acc, float)
+    ok_a = np.all(np.isfinite(acc), axis=1) & (np.linalg.norm(acc, axis=1) > 0)
+    if not ok_a.any():
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    a = np.mean(acc[np.flatnonzero(ok_a)[:k]], axis=0)
+    m = None
+    if mag is not None:
+        mag = np.asarray(mag, float)
+        ok_m = np.all(np.isfinite(mag), axis=1) & (np.linalg.norm(mag, axis=1) > 0)
+        if ok_m.any():
+            m = np.mean(mag[np.flatnonzero(ok_m)[:k]], axis=0)
     return attitude_from_acc_mag(a, m)

@@ -77,10 +77,12 @@ class Mahony(Estimator):
     summary = "Explicit complementary filter (Mahony 2008), gyro+acc+mag, PI bias estimation"
     Params = MahonyParams
     needs = ("gyro", "accel", "mag")
+    state_fields = ("q", "bias", "t_last")
 
     def reset(self) -> None:
         self.q = None  # q_nb, set from the first accelerometer/magnetometer sample
         self.bias = np.zeros(3)  # rad/s
+        self.t_last = None  # s, time of the last sample processed by ``run``
 
     def initialise(self, acc, mag) -> None:
         """Set ``q`` from accelerometer and magnetometer samples (N, 3) (or (3,))."""
@@ -132,7 +134,7 @@ class Mahony(Estimator):
             self.initialise(rec.accel, rec.mag)
         n = len(rec)
         dt = np.empty(n)
-        dt[0] = 0.0
+        dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
         q_out = np.empty((n, 4))
         b_out = np.empty((n, 3))
@@ -143,7 +145,7 @@ class Mahony(Estimator):
                      np.ascontiguousarray(rec.mag), state_q, state_b, p.kp_acc_rad_s,
                      p.kp_mag_rad_s, p.ki_per_s, p.mag_heading_only, p.max_dt_s, q_out, b_out,
                      flags)
-        self.q, self.bias = state_q, state_b
+        self.q, self.bias, self.t_last = state_q, state_b, float(rec.t[-1])
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
