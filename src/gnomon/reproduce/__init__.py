@@ -1,0 +1,1 @@
+"""Paper reproductions: ``pNNN.run(out_dir=None, quick=False, progress=False) -> dict``."""
