@@ -131,16 +131,19 @@ def second_order_gains(bandwidth_rad_s: float, zeta: float = 1.0 / math.sqrt(2.0
 
 
 def bandwidth_rad_s(tf: signal.TransferFunction, w_max: float = 1e3) -> float:
-    """Lowest frequency (rad/s) where ``|tf(iω)|`` falls to ``|tf(0)|/√2`` (−3 dB), by root finding."""
+    """Frequency (rad/s) where a low-pass ``|tf(iω)|`` falls below ``|tf(0)|/√2`` (−3 dB) for good.
+
+    The last downward crossing on a log grid from 1e-8 to ``w_max``, refined by ``brentq``.
+    """
     def excess(logw):
         return abs(_freqresp(tf, 10.0**logw)) - abs(_freqresp(tf, 0.0)) / math.sqrt(2.0)
 
     grid = np.linspace(-8.0, math.log10(w_max), 2000)
     vals = np.array([excess(g) for g in grid])
-    i = int(np.flatnonzero((vals[:-1] > 0) & (vals[1:] <= 0))[-1]) if np.any(
-        (vals[:-1] > 0) & (vals[1:] <= 0)) else -1
-    if i < 0:
+    down = np.flatnonzero((vals[:-1] > 0) & (vals[1:] <= 0))
+    if down.size == 0:
         raise ValueError("no -3 dB crossing found below w_max")
+    i = int(down[-1])
     return float(10.0 ** optimize.brentq(excess, grid[i], grid[i + 1], xtol=1e-14))
 
 
@@ -150,8 +153,8 @@ def _freqresp(tf: signal.TransferFunction, w: float) -> complex:
 
 
 def bode(tf: signal.TransferFunction, w_rad_s) -> tuple[np.ndarray, np.ndarray]:
-    """Magnitude (dB) and phase (deg) of ``tf`` at the frequencies ``w_rad_s`` (rad/s), via scipy."""
-    w, mag, phase = signal.bode(tf, w=np.asarray(w_rad_s, dtype=float))
+    """Magnitude (dB) and phase (deg) of ``tf`` at ``w_rad_s`` (rad/s) (``scipy.signal.bode``)."""
+    _, mag, phase = signal.bode(tf, w=np.asarray(w_rad_s, dtype=float))
     return mag, phase
 
 
@@ -186,7 +189,7 @@ def first_order_accel_error(t_s, T_s: float, tau_s: float, accel_error_rad: floa
 
 
 def first_order_peak_accel_error(T_s: float, tau_s: float, accel_error_rad: float) -> float:
-    """Exact peak (rad) of ``first_order_accel_error``: ``A(1 − e^{−τ/T})``, reached at ``t = τ``."""
+    """Exact peak (rad) of ``first_order_accel_error``: ``A(1 − e^{−τ/T})``, at ``t = τ``."""
     _positive("T_s", T_s)
     return float(accel_error_rad * -math.expm1(-tau_s / T_s))
 
