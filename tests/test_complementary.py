@@ -23,6 +23,9 @@ G = sim.G0_M_S2
 WD = 5e-5  # rad/s, the paper's gyro drift
 
 # (r1, r2): under-damped (the p004 tuning), critically damped, over-damped
+# the paper's first-order filter in 3D: no bias integral, no acceleration rejection
+PAPER_3D = {"bias_gain_1_s2": 0.0, "accel_rejection_rel": 0.0}
+
 GAINS = [(math.sqrt(2.0) * 0.01, 1e-4), (0.02, 1e-4), (0.05, 1e-4)]
 
 
@@ -235,7 +238,7 @@ def test_3d_filter_equals_one_axis_true_geometry():
     t = np.arange(0.0, 100.0, dt)
     a = sim.pulse_profile(t, 5.0, 5.0, 0.7 * G)
     rec = sim.vehicle_recording(t, a, gyro_bias_rad_s=(0.0, -1e-3, 0.0))
-    est = cf.TiltComplementaryFilter(time_constant_s=T, init_samples=1).run(rec)
+    est = cf.TiltComplementaryFilter(time_constant_s=T, init_samples=1, **PAPER_3D).run(rec)
     inc = broad_errors_rad(rec.q_true, est.q)["inclination"]
     w, phi_a = sim.one_axis_inputs(a, 1e-3, "true")
     y = cf.first_order_filter(w, phi_a, dt, T, phi0_rad=0.0)
@@ -294,7 +297,7 @@ def test_bias_integral_estimates_horizontal_gyro_bias():
     horiz = bias - (bias @ up_b) * up_b
     assert np.allclose(b_hat, horiz, atol=1e-7)
     # without the integral, the first-order filter keeps T * |horizontal bias|
-    est1 = cf.TiltComplementaryFilter(time_constant_s=5.0).run(rec)
+    est1 = cf.TiltComplementaryFilter(time_constant_s=5.0, **PAPER_3D).run(rec)
     inc1 = broad_errors_rad(rec.q_true, est1.q)["inclination"]
     assert inc1[-1] == pytest.approx(5.0 * np.linalg.norm(horiz), rel=2e-3)
 
@@ -312,7 +315,8 @@ def test_zero_accel_and_rejection_no_nan():
     tt = np.arange(0.0, 200.0, dt)
     a = sim.pulse_profile(tt, 10.0, 5.0, G)
     rec2 = sim.vehicle_recording(tt, a, gyro_bias_rad_s=(0.0, 0.0, 0.0))
-    est2 = cf.TiltComplementaryFilter(time_constant_s=100.0, accel_rejection_rel=0.1).run(rec2)
+    est2 = cf.TiltComplementaryFilter(time_constant_s=100.0, accel_rejection_rel=0.1,
+                                      bias_gain_1_s2=0.0).run(rec2)
     rej = est2.signals["acc_rejected"]
     assert rej.sum() == int(round(5.0 / dt)) and rej[a > 0].all()
     assert np.max(broad_errors_rad(rec2.q_true, est2.q)["inclination"]) < 1e-9

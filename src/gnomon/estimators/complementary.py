@@ -243,13 +243,19 @@ def _qmul(p, q) -> np.ndarray:
 # ---------------------------------------------------------------- 3D estimator
 @dataclass(frozen=True)
 class TiltCFParams(Params):
-    """Tuning of the 3D tilt complementary filter (SI units)."""
+    """Tuning of the 3D tilt complementary filter (SI units).
 
-    time_constant_s: float = param(2.0, "s", "T: time constant of the accelerometer correction "
+    Defaults are for a MEMS IMU on a hand-held or vehicle-mounted object (chosen on
+    the BROAD HDF5 trials: T = 10 s, a slow bias integral, rejection at 10 % of g).
+    The paper's filter is ``time_constant_s=100, bias_gain_1_s2=0,
+    accel_rejection_rel=0`` (what ``reproduce.p004`` runs).
+    """
+
+    time_constant_s: float = param(10.0, "s", "T: time constant of the accelerometer correction "
                                    "(paper's first-order filter; 100 s in its example)")
-    bias_gain_1_s2: float = param(0.0, "1/s^2", "r2: gain of the gyro-bias integral "
+    bias_gain_1_s2: float = param(0.002, "1/s^2", "r2: gain of the gyro-bias integral "
                                   "(second-order variant 2 in 3D); 0 disables it")
-    accel_rejection_rel: float = param(0.0, "1", "skip the correction when ||a|-g| > this*g; "
+    accel_rejection_rel: float = param(0.1, "1", "skip the correction when ||a|-g| > this*g; "
                                        "0 disables rejection")
     gravity_m_s2: float = param(G0_M_S2, "m/s^2", "gravity magnitude for rejection")
     init_samples: int = param(10, "", "accelerometer samples averaged for the initial tilt")

@@ -151,6 +151,7 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
     bias = (0.0, -wd, 0.0)
 
     def incl(rec, **kw):
+        kw = {"bias_gain_1_s2": 0.0, "accel_rejection_rel": 0.0, **kw}
         est = cf.TiltComplementaryFilter(time_constant_s=T1, init_samples=1, **kw).run(rec)
         return broad_errors_rad(rec.q_true, est.q)["inclination"]
 
