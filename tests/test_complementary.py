@@ -119,9 +119,11 @@ def test_second_order_drift_claim_and_accel_inequality():
 
 
 @pytest.mark.parametrize("zeta", [0.4, 1.0 / math.sqrt(2.0), 1.0, 2.0])
-def test_second_order_gains_bandwidth(zeta):
-    g = an.second_order_gains(0.01, zeta)
-    _, w1 = an.second_order_tf(g.r1, g.r2, 1)
+@pytest.mark.parametrize("variant", [1, 2])
+def test_second_order_gains_bandwidth(zeta, variant):
+    g = an.second_order_gains(0.01, zeta, variant)
+    assert g.r1 == pytest.approx(2 * zeta * math.sqrt(g.r2), rel=1e-14)
+    _, w1 = an.second_order_tf(g.r1, g.r2, variant)
     assert abs(an._freqresp(w1, 0.01)) == pytest.approx(1.0 / math.sqrt(2.0), rel=1e-12)
     assert an.bandwidth_rad_s(w1) == pytest.approx(0.01, rel=1e-9)
     _, fo = an.first_order_tf(100.0)
@@ -376,6 +378,10 @@ def test_p004_quick_meets_targets(tmp_path):
         assert so[v]["peak_accel_error_deg"] == pytest.approx(
             so[v]["analytic_peak_accel_error_deg"], rel=0.01)
     assert so["variant1"]["peak_accel_error_deg"] < so["variant2"]["peak_accel_error_deg"]
+    v2b = so["variant2_same_bandwidth"]
+    assert so["variant1"]["peak_accel_error_deg"] < v2b["peak_accel_error_deg"]
+    assert v2b["peak_accel_error_deg"] == pytest.approx(v2b["analytic_peak_accel_error_deg"],
+                                                         rel=0.01)
     assert so["variant1"]["analytic_steady_drift_error_deg"] > 0.0
     assert so["variant2"]["analytic_steady_drift_error_deg"] == 0.0
     d3 = out["tilt_cf_3d"]

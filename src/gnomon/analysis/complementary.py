@@ -114,19 +114,26 @@ class SecondOrderGains:
     zeta: float
 
 
-def second_order_gains(bandwidth_rad_s: float, zeta: float = 1.0 / math.sqrt(2.0)
-                       ) -> SecondOrderGains:
-    """``r₁ = 2ζω_n``, ``r₂ = ω_n²`` so that variant 1's ``1 − W = r₂/D`` has its −3 dB point
-    at ``bandwidth_rad_s`` (rad/s) — the same bandwidth as a first-order filter with
+def second_order_gains(bandwidth_rad_s: float, zeta: float = 1.0 / math.sqrt(2.0),
+                       variant: int = 1) -> SecondOrderGains:
+    """``r₁ = 2ζω_n``, ``r₂ = ω_n²`` so that ``1 − W`` of ``variant`` has its −3 dB point at
+    ``bandwidth_rad_s`` (rad/s) — the bandwidth of a first-order filter with
     ``T = 1/bandwidth_rad_s``.
 
-    The −3 dB frequency of ``ω_n²/(s² + 2ζω_n s + ω_n²)`` is
-    ``ω_n·sqrt(1 − 2ζ² + sqrt(4ζ⁴ − 4ζ² + 2))`` (``= ω_n`` for ``ζ = 1/√2``).
+    With ``x = ω/ω_n`` at −3 dB: variant 1 (``ω_n²/D``)
+    ``x² = 1 − 2ζ² + sqrt(4ζ⁴ − 4ζ² + 2)`` (``x = 1`` for ``ζ = 1/√2``);
+    variant 2 (``(2ζω_n s + ω_n²)/D``) ``x² = 1 + 2ζ² + sqrt((1 + 2ζ²)² + 1)``.
     """
     _positive("bandwidth_rad_s", bandwidth_rad_s)
     _positive("zeta", zeta)
-    k = math.sqrt(1.0 - 2.0 * zeta**2 + math.sqrt(4.0 * zeta**4 - 4.0 * zeta**2 + 2.0))
-    wn = bandwidth_rad_s / k
+    z2 = zeta * zeta
+    if variant == 1:
+        x2 = 1.0 - 2.0 * z2 + math.sqrt(4.0 * z2 * z2 - 4.0 * z2 + 2.0)
+    elif variant == 2:
+        x2 = 1.0 + 2.0 * z2 + math.sqrt((1.0 + 2.0 * z2) ** 2 + 1.0)
+    else:
+        raise ValueError(f"variant must be 1 or 2, got {variant!r}")
+    wn = bandwidth_rad_s / math.sqrt(x2)
     return SecondOrderGains(r1=2.0 * zeta * wn, r2=wn * wn, omega_n_rad_s=wn, zeta=zeta)
 
 
