@@ -284,11 +284,13 @@ class TiltComplementaryFilter(Estimator):
     summary = "3D tilt complementary filter, first order (+ optional bias integral), seed 004"
     Params = TiltCFParams
     needs = ("gyro", "accel")
+    state_fields = ("q", "bias_rad_s", "acc_rejected", "t_last")
 
     def reset(self) -> None:
         self.q = None
         self.bias_rad_s = np.zeros(3)
         self.acc_rejected = False
+        self.t_last = None  # s, last sample processed by ``run``
         self._t = 0.0
         self._speed = _SpeedState()
 
@@ -330,11 +332,15 @@ class TiltComplementaryFilter(Estimator):
                 raise InputError(f"expected shape {rec.t.shape}, got {speed.shape}",
                                  field="extra.speed_m_s")
             accel = compensate_accel(rec.t, accel, rec.gyro, speed)
-        n0 = min(p.init_samples, rec.t.size)
-        q0 = quat_from_accel(np.mean(accel[:n0], axis=0))
-        q, bias, rej = tilt_cf_batch(rec.t, rec.gyro, accel, q0, p)
-        self.reset()
+        if self.q is None:
+            n0 = min(p.init_samples, rec.t.size)
+            q0, b0, t_prev = quat_from_accel(np.mean(accel[:n0], axis=0)), np.zeros(3), math.nan
+        else:  # continue from the state of an earlier run
+            q0, b0 = self.q, self.bias_rad_s
+            t_prev = rec.t[0] - self.first_dt(rec)
+        q, bias, rej = tilt_cf_batch(rec.t, rec.gyro, accel, q0, p, b0=b0, t_prev=t_prev)
         self.q, self.bias_rad_s, self.acc_rejected = q[-1].copy(), bias[-1].copy(), bool(rej[-1])
+        self.t_last = float(rec.t[-1])
         return Estimate(t=rec.t, q=q, estimator=self.name, params=p.as_dict(),
                         frames={"reference": rec.frames.get("reference", "ENU"),
                                 "body": rec.frames.get("body", "sensor")},
@@ -364,11 +370,14 @@ def _tilt_step_py(q, b, w, f, dt, T, r2, rej_rel, g):
     return q, b, rejected
 
 
-def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams):
+def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams, b0=None,
+                  t_prev: float = math.nan):
     """Batch run of the 3D filter from ``q0`` at ``t_s[0]`` (numba kernel).
 
     Returns ``q_nb`` (N, 4), ``bias_rad_s`` (N, 3), ``acc_rejected`` (N,) bool.
-    Sample 0 is ``q0`` itself (flagged rejected if its accelerometer vector is zero).
+    Sample 0 is ``q0`` itself (flagged rejected if its accelerometer vector is zero),
+    unless ``t_prev`` (s) is given: then the filter steps from ``q0``, ``b0`` (rad/s)
+    at ``t_prev`` to ``t_s[0]`` (a continued run).
     """
     from gnomon.kernels.tilt_cf import tilt_cf_run
 
@@ -379,7 +388,9 @@ def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams):
     rej = np.zeros(n, dtype=np.bool_)
     tilt_cf_run(t, np.ascontiguousarray(gyro_rad_s, dtype=float),
                 np.ascontiguousarray(accel_m_s2, dtype=float),
-                np.ascontiguousarray(q0, dtype=float), float(params.time_constant_s),
+                np.ascontiguousarray(q0, dtype=float),
+                np.zeros(3) if b0 is None else np.ascontiguousarray(b0, dtype=float),
+                float(t_prev), float(params.time_constant_s),
                 float(params.bias_gain_1_s2), float(params.accel_rejection_rel),
                 float(params.gravity_m_s2), q, b, rej)
     return q, b, rej

@@ -65,16 +65,23 @@ def tilt_cf_step(q, b, dt, gx, gy, gz, ax, ay, az, T, r2, rej_rel, g):
 
 
 @njit(cache=True)
-def tilt_cf_run(t, gyro, accel, q0, T, r2, rej_rel, g, q_out, b_out, rej_out):
-    """Whole recording: ``q_out`` (N, 4), ``b_out`` (N, 3), ``rej_out`` (N,) filled in place."""
+def tilt_cf_run(t, gyro, accel, q0, b0, t_prev, T, r2, rej_rel, g, q_out, b_out, rej_out):
+    """Whole recording: ``q_out`` (N, 4), ``b_out`` (N, 3), ``rej_out`` (N,) filled in place.
+
+    A fresh filter (``t_prev`` NaN) outputs ``q0`` at sample 0; a continued one
+    (``t_prev`` the time of its last sample) steps from ``q0``, ``b0`` to ``t[0]`` first.
+    """
     n = t.shape[0]
     q = q0.copy()
-    b = q0[:3] * 0.0
-    q_out[0, :] = q
-    b_out[0, :] = b
-    rej_out[0] = not (accel[0, 0] ** 2 + accel[0, 1] ** 2 + accel[0, 2] ** 2 > 0.0)
-    for k in range(1, n):
-        dt = t[k] - t[k - 1]
+    b = b0.copy()
+    start = 0
+    if math.isnan(t_prev):
+        q_out[0, :] = q
+        b_out[0, :] = b
+        rej_out[0] = not (accel[0, 0] ** 2 + accel[0, 1] ** 2 + accel[0, 2] ** 2 > 0.0)
+        start = 1
+    for k in range(start, n):
+        dt = t[k] - (t[k - 1] if k > 0 else t_prev)
         rej_out[k] = tilt_cf_step(q, b, dt, gyro[k, 0], gyro[k, 1], gyro[k, 2],
                                   accel[k, 0], accel[k, 1], accel[k, 2], T, r2, rej_rel, g)
         q_out[k, :] = q
