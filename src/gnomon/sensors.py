@@ -84,7 +84,7 @@ def accelerometer_model(n, rng: np.random.Generator, noise_m_s2=0.0, bias_m_s2=(
 
 
 def allan_deviation(x, dt, taus_s):
-    """Overlapping Allan deviation of a rate signal ``x`` (N,) sampled every ``dt`` s at ``taus_s``."""
+    """Overlapping Allan deviation of a rate ``x`` (N,) sampled every ``dt`` s, at ``taus_s``."""
     x = np.asarray(x, float)
     theta = np.concatenate([[0.0], np.cumsum(x) * dt])
     out = []

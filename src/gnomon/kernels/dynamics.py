@@ -1,4 +1,6 @@
-"""Numba kernel: rigid spacecraft with wheels and magnetorquers, fixed-step RK4 (see gnomon.dynamics).
+"""Numba kernel: rigid spacecraft with wheels and magnetorquers, fixed-step RK4.
+
+See :mod:`gnomon.dynamics`.
 
 Every function is ``@njit``; ``rk4_attitude.py_func`` is the readable (slow)
 Python version the tests compare the compiled one against.

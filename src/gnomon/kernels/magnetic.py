@@ -1,4 +1,7 @@
-"""Numba kernel: spherical-harmonic geomagnetic field at many points (see gnomon.environment.magnetic)."""
+"""Numba kernel: spherical-harmonic geomagnetic field at many points.
+
+See :mod:`gnomon.environment.magnetic`.
+"""
 
 from __future__ import annotations
 
