@@ -152,7 +152,7 @@ SCHEMA: dict = {
         "mode": L("enum", "magnetic_pd",
                   choices=("none", "bdot", "magnetic_pd", "bdot_then_pd", "wheel_pd"),
                   doc="attitude control law (gnomon.dynamics)"),
-        "k_bdot": L("float", 1.0e4, "A m^2 s/T", "B-dot gain", min=0),
+        "k_bdot": L("float", 1.0e6, "A m^2 s/T", "B-dot gain", min=0),
         "kp_Nm": L("float", 5e-6, "N m", "pointing gain", min=0),
         "kd_Nms": L("float", 2.5e-3, "N m s", "rate damping gain", min=0),
         "switch_rate_deg_s": L("float", 0.2, "deg/s", "B-dot -> pointing hand-over", min=0),
