@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.frames import parse_epoch
 
 __all__ = ["SCHEMA", "defaults", "validate", "flatten", "set_dotted", "get_dotted"]
 
@@ -59,6 +60,16 @@ class Leaf:
         elif k == "bool":
             if not isinstance(v, bool):
                 raise bad(f"expected true or false, got {v!r}", field=key)
+        elif k == "epoch":                  # YAML turns an unquoted ISO time into a datetime
+            import datetime as _dt
+
+
+            if not isinstance(v, str | _dt.date):
+                raise bad(f"expected an ISO-8601 UTC time, got {v!r}", field=key)
+            try:
+                return parse_epoch(v).isoformat().replace("+00:00", "Z")
+            except InputError as err:
+                raise bad(err.message, field=key) from None
         elif k == "str":
             if not isinstance(v, str):
                 raise bad(f"expected a string, got {v!r}", field=key)
@@ -90,7 +101,7 @@ L = Leaf
 SCHEMA: dict = {
     "name": L("str", "", doc="scenario name"),
     "description": L("str", "", doc="free text"),
-    "epoch": L("str", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
+    "epoch": L("epoch", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
     "duration_s": L("float", 5900.0, "s", "length of the run", min=0, min_open=True),
     "step_s": L("float", 1.0, "s", "sampling = integration step", min=0, min_open=True),
     "seed": L("int", 0, doc="root seed (numpy SeedSequence) of every random draw", min=0),
@@ -256,14 +267,12 @@ def _merge(user: dict, schema: dict, out: dict, prefix: str) -> None:
 def validate(user: dict) -> dict:
     """Merge ``user`` over the defaults and validate it; returns the full nested dict."""
     from gnomon.environment.orbit import MIN_ALTITUDE_M, R_EARTH, TLEOrbit
-    from gnomon.frames import parse_epoch
 
     cfg = defaults()
     _merge(user or {}, SCHEMA, cfg, "")
     # the defaults themselves are checked too (inertia as a full matrix, etc.)
     for key, value in flatten(cfg).items():
         set_dotted(cfg, key, _leaf(key).check(key, value))
-    parse_epoch(cfg["epoch"])
     n = cfg["duration_s"] / cfg["step_s"]
     if abs(n - round(n)) > 1e-9 * max(1.0, n):
         raise InputError(f"step {cfg['step_s']:g} s does not divide the duration "
