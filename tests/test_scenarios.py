@@ -170,3 +170,35 @@ def test_bad_overrides_and_names():
         load_scenario("nope")
     with pytest.raises(InputError, match="step_s"):
         Scenario.from_dict({"duration_s": 10.5})
+
+
+def test_tle_orbit_dipole_field_and_orbit_normal_sun(tmp_path):
+    # ISS TLE from the sgp4 documentation; epoch 2008-09-20 12:25:40 UTC, unquoted in YAML
+    p = tmp_path / "iss.yaml"
+    p.write_text(
+        "epoch: 2008-09-20T12:25:40Z\nduration_s: 300\n"
+        "orbit:\n  kind: tle\n"
+        "  tle_line1: '1 25544U 98067A   08264.51782528 -.00002182  00000-0 -11606-4 0  2927'\n"
+        "  tle_line2: '2 25544  51.6416 247.4627 0006703 130.5360 325.0288 15.72125391563537'\n"
+        "environment:\n  field_model: dipole\n  sun_model: orbit_normal\n  shadow: none\n")
+    sc = load_scenario(p)
+    rec = simulate(sc)
+    x = rec.extra
+    alt = np.linalg.norm(x["r_i_m"], axis=1) - 6378137.0
+    assert np.all((330e3 < alt) & (alt < 380e3))                     # ISS in 2008
+    np.testing.assert_allclose(x["s_o"], np.tile([0.0, -1.0, 0.0], (len(rec), 1)), atol=1e-12)
+    assert np.all(x["eclipse"] == 1.0)
+    # dipole field magnitude at ~350 km: between the equatorial and polar dipole values
+    b = np.linalg.norm(x["b_o_nT"], axis=1)
+    assert np.all((20000 < b) & (b < 60000))
+
+
+def test_bdot_then_pointing_detumbles_a_tumbling_satellite():
+    sc = load_scenario("seed000").replace({
+        "duration_s": 17600.0, "controller.mode": "bdot_then_pd",
+        "initial.rate_ob_deg_s": [3.0, -2.0, 2.5], "sensors.gyro.step_deg_s": [0, 0, 0]})
+    rec = simulate(sc)
+    w = np.degrees(np.linalg.norm(rec.extra["w_ob_b"], axis=1))
+    assert w[0] > 4.0
+    assert np.max(w[-2000:]) < 0.2                                   # settled near o
+    assert np.max(np.abs(rec.extra["m_dipole_b_Am2"])) <= 0.5

@@ -10,6 +10,7 @@ error is one ``InputError`` naming the key, raised before any simulation.
 from __future__ import annotations
 
 import copy
+import datetime
 import math
 from typing import Any
 
@@ -61,10 +62,7 @@ class Leaf:
             if not isinstance(v, bool):
                 raise bad(f"expected true or false, got {v!r}", field=key)
         elif k == "epoch":                  # YAML turns an unquoted ISO time into a datetime
-            import datetime as _dt
-
-
-            if not isinstance(v, str | _dt.date):
+            if not isinstance(v, str | datetime.date):
                 raise bad(f"expected an ISO-8601 UTC time, got {v!r}", field=key)
             try:
                 return parse_epoch(v).isoformat().replace("+00:00", "Z")
