@@ -137,6 +137,10 @@ def test_yaml_file_and_replace(tmp_path):
     assert sc.get("sensors.magnetometer.noise_nT") == 0.0            # original unchanged
     assert len(simulate(sc2)) == 61
     assert any(row[0] == "sensors.gyro.step_time_orbits" for row in describe())
+    # a saved scenario reads back to the same configuration
+    q = tmp_path / "saved.yaml"
+    q.write_text(sc2.to_yaml())
+    assert load_scenario(q).config == sc2.config
 
 
 @pytest.mark.parametrize("text, field, words", [
@@ -149,6 +153,9 @@ def test_yaml_file_and_replace(tmp_path):
     ("sensors:\n  gyro:\n    bias_deg_s: [1, 2]\n", "sensors.gyro.bias_deg_s", "3 numbers"),
     ("controller:\n  mode: pid\n", "controller.mode", "expected one of"),
     ("epoch: yesterday\n", "epoch", "ISO-8601"),
+    ("orbit:\n  inclination_deg: 200\n", "orbit.inclination_deg", "[0, 180]"),
+    ("sensors:\n  sun_sensor:\n    boresight_b: [0, 0, 0]\n", "sensors.sun_sensor.boresight_b",
+     "non-zero"),
 ])
 def test_bad_scenarios_fail_before_simulating(tmp_path, text, field, words):
     p = tmp_path / "bad.yaml"

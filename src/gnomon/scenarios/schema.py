@@ -291,6 +291,13 @@ def validate(user: dict) -> dict:
         if not o["tle_line1"] or not o["tle_line2"]:
             raise InputError("kind 'tle' needs tle_line1 and tle_line2", field="orbit.tle_line1")
         TLEOrbit(o["tle_line1"], o["tle_line2"])
+    inc = o["inclination_deg"]
+    if not isinstance(inc, str) and not 0.0 <= inc <= 180.0:
+        raise InputError(f"must be in [0, 180] deg, got {inc:g}", field="orbit.inclination_deg")
+    if np.linalg.norm(cfg["sensors"]["sun_sensor"]["boresight_b"]) == 0.0:
+        raise InputError("must be a non-zero vector", field="sensors.sun_sensor.boresight_b")
+    if cfg["sensors"]["sun_sensor"]["min_illumination"] > 1.0:
+        raise InputError("must be in [0, 1]", field="sensors.sun_sensor.min_illumination")
     g = cfg["sensors"]["gyro"]
     if g["step_time_orbits"] is not None and g["step_time_s"] is not None:
         raise InputError("give step_time_orbits or step_time_s, not both",
