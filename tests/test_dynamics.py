@@ -56,6 +56,7 @@ def test_momentum_exchange_with_wheels_conserves_total_momentum():
     # no external torque (field zero, no gravity gradient): J w + h is constant in i
     L_i = np.einsum("nij,nj->ni", dcm_from_quat(h.q_ib), h.w_ib_b @ J_FULL.T + h.h_b)
     assert np.max(np.abs(h.h_b)) > 1e-3                   # the wheels did work
+    assert np.max(np.abs(h.hdot_b)) <= 2e-3 + 1e-15        # torque limit
     assert np.max(np.linalg.norm(L_i - L_i[0], axis=1)) < 1e-7
 
 

@@ -134,6 +134,8 @@ def test_yaml_file_and_replace(tmp_path):
     assert sc.get("spacecraft.inertia_kg_m2")[1][1] == 1.2
     sc2 = sc.replace(sensors__magnetometer__noise_nT=50.0)
     assert sc2.get("sensors.magnetometer.noise_nT") == 50.0
+    sc3 = sc.replace({"sensors.gyro.bias_deg_s": np.float64(0.01), "seed": np.int64(3)})
+    assert sc3.get("sensors.gyro.bias_deg_s") == [0.01, 0.01, 0.01] and sc3.get("seed") == 3
     assert sc.get("sensors.magnetometer.noise_nT") == 0.0            # original unchanged
     assert len(simulate(sc2)) == 61
     assert any(row[0] == "sensors.gyro.step_time_orbits" for row in describe())

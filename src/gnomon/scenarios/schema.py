@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import datetime
 import math
+import numbers
 from typing import Any
 
 import numpy as np
@@ -52,12 +53,13 @@ class Leaf:
                     v = float(v)
                 except ValueError:
                     raise bad(f"expected a number, got {v!r}", field=key) from None
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
                 raise bad(f"expected a number, got {v!r}", field=key)
             v = float(v)
         elif k == "int":
-            if isinstance(v, bool) or not isinstance(v, int):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
                 raise bad(f"expected an integer, got {v!r}", field=key)
+            v = int(v)
         elif k == "bool":
             if not isinstance(v, bool):
                 raise bad(f"expected true or false, got {v!r}", field=key)
@@ -74,12 +76,14 @@ class Leaf:
         elif k == "enum":
             if v not in self.choices:
                 raise bad(f"expected one of {list(self.choices)}, got {v!r}", field=key)
-        elif k == "vec3":
+        elif k == "vec3":                   # 3 numbers, or one number for all three axes
             a = np.asarray(v, dtype=object)
-            if a.shape != (3,) or not all(isinstance(x, int | float) and not isinstance(x, bool)
+            if a.shape == ():
+                a = np.array([v, v, v], dtype=object)
+            if a.shape != (3,) or not all(isinstance(x, numbers.Real) and not isinstance(x, bool)
                                           and math.isfinite(x) for x in a):
-                raise bad(f"expected 3 numbers, got {v!r}", field=key)
-            return [float(x) for x in v]
+                raise bad(f"expected 3 numbers (or one for all axes), got {v!r}", field=key)
+            return [float(x) for x in a]
         elif k == "inertia":
             from gnomon.dynamics import check_inertia
 
