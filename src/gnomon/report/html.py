@@ -228,10 +228,18 @@ overflow:auto;font-size:12px} nav a{margin-right:1em}
 """
 
 
+# Reports a figure that failed to load on the browser console (the browser test reads it).
+_IMAGE_CHECK = ("<script>window.addEventListener('load',()=>{for(const i of document.images)"
+                "{if(!i.complete||i.naturalWidth===0)console.error('missing image: '+"
+                "i.getAttribute('src'))}})</script>")
+
+
 def _page(title: str, body: str) -> str:
     return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<link rel='icon' href='data:,'>"
             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>"
-            f"<body><nav><a href='index.html'>gnomon report</a></nav>{body}</body></html>")
+            f"<body><nav><a href='index.html'>gnomon report</a></nav>{body}"
+            f"{_IMAGE_CHECK}</body></html>")
 
 
 def _fmt(v: float) -> str:
