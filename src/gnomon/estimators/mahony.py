@@ -100,9 +100,9 @@ class Mahony(Estimator):
             return self.q
         # prediction with the gyro over (t[k-1], t[k]], then correction with the vectors at t[k]
         self.q = quat_mul(self.q, quat_from_rotvec((gyro - self.bias) * dt_s))
-        self.q = self.q / np.linalg.norm(self.q)
         if dt_s > p.max_dt_s:
             self.flags["gap"] = True
+            self.q = self.q / np.linalg.norm(self.q)
             return self.q
         a, ok_a = _unit(np.asarray(acc, float))
         m, ok_m = _unit(np.asarray(mag, float))
