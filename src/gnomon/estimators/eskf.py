@@ -1,4 +1,4 @@
-"""Error-state quaternion Kalman filter for a strapdown AHRS, full (r = 6) and reduced (r = 3) measurement.
+"""Error-state quaternion KF for a strapdown AHRS, full (r = 6) and reduced (r = 3) measurement.
 
 After Bilous & Nesterenko, "Simplification of the measurement model in the
 algorithm of a strapdown attitude and heading reference system based on the
@@ -128,7 +128,7 @@ def measurement_matrix_r3_nav(tan_i: float) -> np.ndarray:
 
 
 def measurement_r3(q, accel_b, mag_b, g, mag_h, mag_z):
-    """Reduced model: measurement ``y`` (3,) (predicted value 0) and ``D`` (3, 6) = ``[D_n Ĉ_nb 0]``."""
+    """Reduced model: measurement ``y`` (3,) (predicted 0), ``D`` (3, 6) = ``[D_n Ĉ_nb 0]``."""
     y = measurement_function_r3(q, accel_b, mag_b, g, mag_h)
     D = np.zeros((3, 6))
     D[:, :3] = measurement_matrix_r3_nav(mag_z / mag_h) @ dcm_from_quat(q)

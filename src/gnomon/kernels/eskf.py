@@ -29,6 +29,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.eskf_unrolled import update_r3, update_r6
+
 MODE_PREDICT_ONLY = 0
 MODE_R3 = 3
 MODE_R6 = 6
@@ -101,17 +103,20 @@ def propagate(q, b, P, wx_m, wy_m, wz_m, dt, var_gyro, var_bias, A, T, U):
     wx = wx_m - b[0]
     wy = wy_m - b[1]
     wz = wz_m - b[2]
-    # quaternion exponential of the rotation vector ω̂ dt (same branches as rotation.quat_from_rotvec)
+    # quaternion exponential of the rotation vector ω̂ dt
     vx = wx * dt
     vy = wy * dt
     vz = wz * dt
-    th = np.sqrt(vx * vx + vy * vy + vz * vz)
-    if th < 1e-4:
-        th2 = th * th
-        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
+    th2 = vx * vx + vy * vy + vz * vz
+    if th2 < 2.5e-3:
+        # |θ| < 0.05 rad: Taylor series of sin(θ/2)/θ and cos(θ/2), truncation < 1e-18
+        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0)))
+        dw = 1.0 - th2 * (0.125 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
+                                                              - th2 * (1.0 / 10321920.0))))
     else:
+        th = np.sqrt(th2)
         k = np.sin(0.5 * th) / th
-    dw = np.cos(0.5 * th)
+        dw = np.cos(0.5 * th)
     dx = k * vx
     dy = k * vy
     dz = k * vz
@@ -257,39 +262,51 @@ def measure_r3(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag, fa,
 
 
 # ---------------------------------------------------------------- update
-@njit(cache=True, fastmath=True, error_model="numpy")
-def correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx):
-    """Kalman update in place: gain, ``δx = K y``, Joseph form, symmetrised, injection.
+def joseph(P, D1, Rd, y, K, r, L, M, G, dx):
+    """Error estimate ``dx = K y`` and Joseph-form covariance (upper triangle into ``P``).
 
-    Joseph form ``P ← (I - K D) P (I - K D)ᵀ + K R Kᵀ`` with ``K D = [L 0]``,
-    ``L = K D1`` (6x3): ``M = P - L P[0:3, :]``, ``P ← M - M[:, 0:3] Lᵀ + K R Kᵀ``
-    (upper triangle computed, mirrored). Injection: ``q ← normalise(q ⊗ [1, δe])``,
-    ``b ← b + δb``; the error state is reset to zero.
+    ``P ← (I - K D) P (I - K D)ᵀ + K R Kᵀ`` with ``K D = [L 0]``, ``L = K D1``
+    (6x3), evaluated as ``N = (I - K D) P = P - L P[0:3, :]`` (into ``M``; its
+    first three columns and its upper triangle), ``G = K R - N Dᵀ`` (6 x r; zero
+    for the exact optimal gain, which is what makes the form robust to
+    rounding and to a sub-optimal gain), ``P ← N + G Kᵀ``: only the upper
+    triangle ``P[i, j], j >= i`` is written (the caller mirrors it, which is
+    the symmetrisation). Plain Python, compiled below and traced by the code
+    generator like ``gain``.
     """
-    gain_nb(P, D1, Rd, r, PDt, S, K)
     for i in range(6):
-        s = 0.0
-        for k in range(r):
-            s += K[i, k] * y[k]
+        s = K[i, 0] * y[0]
+        for k in range(1, r):
+            s = s + K[i, k] * y[k]
         dx[i] = s
         for j in range(3):
-            s = 0.0
-            for k in range(r):
-                s += K[i, k] * D1[k, j]
+            s = K[i, 0] * D1[0, j]
+            for k in range(1, r):
+                s = s + K[i, k] * D1[k, j]
             L[i, j] = s
     for i in range(6):
-        for j in range(6):
+        for j in range(3):
+            M[i, j] = P[i, j] - (L[i, 0] * P[0, j] + L[i, 1] * P[1, j] + L[i, 2] * P[2, j])
+        for j in range(max(i, 3), 6):
             M[i, j] = P[i, j] - (L[i, 0] * P[0, j] + L[i, 1] * P[1, j] + L[i, 2] * P[2, j])
     for i in range(6):
+        for k in range(r):
+            G[i, k] = K[i, k] * Rd[k] - (M[i, 0] * D1[k, 0] + M[i, 1] * D1[k, 1]
+                                         + M[i, 2] * D1[k, 2])
+    for i in range(6):
         for j in range(i, 6):
-            v = M[i, j] - (M[i, 0] * L[j, 0] + M[i, 1] * L[j, 1] + M[i, 2] * L[j, 2])
-            s = 0.0
-            for k in range(r):
-                s += K[i, k] * Rd[k] * K[j, k]
-            v = v + s
-            P[i, j] = v
-            P[j, i] = v
-    # inject
+            s = G[i, 0] * K[j, 0]
+            for k in range(1, r):
+                s = s + G[i, k] * K[j, k]
+            P[i, j] = M[i, j] + s
+
+
+joseph_nb = njit(cache=True, fastmath=True, error_model="numpy")(joseph)
+
+
+@njit(cache=True, fastmath=True, error_model="numpy")
+def inject(q, b, dx):
+    """``q ← normalise(q ⊗ [1, δe])``, ``b ← b + δb`` (the error state is then reset to zero)."""
     ex, ey, ez = dx[0], dx[1], dx[2]
     qw, qx, qy, qz = q[0], q[1], q[2], q[3]
     nw = qw - qx * ex - qy * ey - qz * ez
@@ -304,6 +321,22 @@ def correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx):
     b[0] += dx[3]
     b[1] += dx[4]
     b[2] += dx[5]
+
+
+@njit(cache=True, fastmath=True, error_model="numpy")
+def correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx):
+    """Kalman update in place with loops (``gain``, ``joseph``, mirror, ``inject``).
+
+    The batch run uses the straight-line twins generated from the same two
+    functions (``eskf_unrolled.correct_r3`` / ``correct_r6``); this loop
+    version is kept as the readable compiled form and tested against them.
+    """
+    gain_nb(P, D1, Rd, r, PDt, S, K)
+    joseph_nb(P, D1, Rd, y, K, r, L, M, PDt, dx)
+    for i in range(6):
+        for j in range(i + 1, 6):
+            P[j, i] = P[i, j]
+    inject(q, b, dx)
 
 
 @njit(cache=True, fastmath=True, error_model="numpy")
@@ -345,11 +378,6 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     y = np.empty(6)
     D1 = np.empty((6, 3))
     Rd = np.empty(6)
-    PDt = np.empty((6, 6))
-    S = np.empty((6, 6))
-    K = np.empty((6, 6))
-    L = np.empty((6, 3))
-    M = np.empty((6, 6))
     dx = np.empty(6)
     dip_s = dip_s0
     count = dip_n0
@@ -368,13 +396,17 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
                 dip_s += w * ((ax * mx + ay * my + az * mz) / (g * nm) - dip_s)
             mag_z = -dip_s
             mag_h = np.sqrt(1.0 - dip_s * dip_s)
+            # straight-line updates generated from gain + joseph (eskf_unrolled)
             if mode == MODE_R6:
                 measure_r6(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag,
                            fa, fm, y, D1, Rd)
+                update_r6(P, D1, Rd, y, dx)
+                inject(q, b, dx)
             else:
                 measure_r3(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag,
                            fa, fm, y, D1, Rd)
-            correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx)
+                update_r3(P, D1, Rd, y, dx)
+                inject(q, b, dx)
             for j in range(r):
                 innov_out[k, j] = y[j]
         for j in range(4):
