@@ -209,9 +209,9 @@ class EskfParams(Params):
 
     measurement: str = param("r6", "", "measurement model: 'r6' (accel + mag residuals) "
                              "or 'r3' (a_x/g, a_y/g, m_x/H in the computed ENU frame)")
-    gyro_noise: float = param(3e-3, "rad/s/√Hz", "gyro white-noise density")
+    gyro_noise: float = param(1e-3, "rad/s/√Hz", "gyro white-noise density")
     bias_rw: float = param(1e-4, "rad/s/√s", "gyro bias random walk")
-    accel_noise: float = param(0.5, "m/s²", "accelerometer noise std per sample "
+    accel_noise: float = param(1.0, "m/s²", "accelerometer noise std per sample "
                                "(includes unmodelled linear acceleration)")
     mag_noise: float = param(0.1, "1 (of |B0|)", "magnetometer noise std per sample, as a "
                              "fraction of the reference field magnitude")
@@ -222,7 +222,8 @@ class EskfParams(Params):
                              "TRIAD initialisation and the reference field")
     accel_gate: float = param(1.0, "m/s²", "| |a| - g | at which the accelerometer variance "
                               "is doubled (1 + (dev/gate)²); 0 disables")
-    mag_gate: float = param(0.1, "1 (of |B0|)", "| |m|/|B0| - 1 | at which the magnetometer "
+    mag_gate: float = param(0.3, "1 (of |B0|)", "deviation of |m|/|B0| from 1 or of "
+                            "a·m/(g|m|) from its running mean at which the magnetometer "
                             "variance is doubled; 0 disables")
     dip_tau: float = param(30.0, "s", "time constant of the running estimate of the "
                            "inclination from the angle between a and m; 0: fixed at init")
@@ -318,11 +319,12 @@ class Eskf(Estimator):
         m = np.asarray(mag_b, float) / self.b0_mag
         a = np.asarray(accel_b, float)
         self.q, self.P = propagate(self.q, self.b, self.P, gyro_b, dt, p.gyro_noise, p.bias_rw)
-        tau = 0.0 if p.inclination_known else p.dip_tau
+        fa = _gate(abs(np.linalg.norm(a) - p.gravity), p.accel_gate)
+        cos_am = (a @ m) / (p.gravity * np.linalg.norm(m))
+        fm = _gate(max(abs(np.linalg.norm(m) - 1.0), abs(cos_am - self.dip[0])), p.mag_gate)
+        tau = 0.0 if (p.inclination_known or fa >= 2.0 or fm >= 2.0) else p.dip_tau
         self.dip = update_dip(*self.dip, a, m, dt, tau, p.gravity)
         h, z = self.field
-        fa = _gate(abs(np.linalg.norm(a) - p.gravity), p.accel_gate)
-        fm = _gate(abs(np.linalg.norm(m) - 1.0), p.mag_gate)
         meas = measurement_r6 if p.measurement == "r6" else measurement_r3
         y, D = meas(self.q, a, m, p.gravity, h, z)
         self.q, self.b, self.P, _ = update(self.q, self.b, self.P, y, D, self._R(fa, fm))
@@ -352,6 +354,7 @@ class Eskf(Estimator):
         b_out = np.empty((n, 3))
         innov = np.full((n, 6), np.nan)
         pdiag = np.empty((n, 6))
+        P_end = np.empty((6, 6))
         mode = kern.MODE_R6 if p.measurement == "r6" else kern.MODE_R3
         kern.run_batch(
             np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
@@ -359,8 +362,8 @@ class Eskf(Estimator):
             self.P.copy(), p.gyro_noise**2, p.bias_rw**2, p.accel_noise**2, p.mag_noise**2,
             p.gravity, self.dip[0], self.dip[1], 0.0 if p.inclination_known else p.dip_tau,
             p.accel_gate, p.mag_gate, mode,
-            q_out, b_out, innov, pdiag)
-        self.q, self.b = q_out[-1].copy(), b_out[-1].copy()
+            q_out, b_out, innov, pdiag, P_end)
+        self.q, self.b, self.P = q_out[-1].copy(), b_out[-1].copy(), P_end
         r = 6 if p.measurement == "r6" else 3
         return Estimate(
             t=rec.t.copy(), q=q_out, estimator=self.name, params=p.as_dict(),
@@ -370,6 +373,7 @@ class Eskf(Estimator):
 
 
 def _gate(dev: float, gate: float) -> float:
+    """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``), as the kernel."""
     if gate <= 0.0:
         return 1.0
     return 1.0 + (dev / gate) ** 2

@@ -352,7 +352,7 @@ def gate_factor(dev, gate):
 @njit(cache=True, fastmath=True, error_model="numpy")
 def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var_mag,
               g, dip_s0, dip_n0, dip_tau, gate_acc, gate_mag, mode,
-              q_out, b_out, innov_out, pdiag_out):
+              q_out, b_out, innov_out, pdiag_out, P_out):
     """Run the filter over N samples; outputs are written into the given arrays.
 
     gyro, accel (N, 3) rad/s and m/s²; mag (N, 3) normalised by the reference
@@ -365,7 +365,7 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     (``dip_tau <= 0``: fixed at ``dip_s0``). mode: 0 predict only, 3 reduced,
     6 full measurement model.
     Outputs: q_out (N, 4), b_out (N, 3), innov_out (N, 6) (first r columns
-    used), pdiag_out (N, 6).
+    used), pdiag_out (N, 6), P_out (6, 6) the final covariance.
     """
     n = gyro.shape[0]
     q = q0.copy()
@@ -388,12 +388,13 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
             mx, my, mz = mag[k, 0], mag[k, 1], mag[k, 2]
             na = np.sqrt(ax * ax + ay * ay + az * az)
             nm = np.sqrt(mx * mx + my * my + mz * mz)
+            cos_am = (ax * mx + ay * my + az * mz) / (g * nm)
             fa = gate_factor(abs(na - g), gate_acc)
-            fm = gate_factor(abs(nm - 1.0), gate_mag)
-            if dip_tau > 0.0:
+            fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - dip_s)), gate_mag)
+            if dip_tau > 0.0 and fm < 2.0 and fa < 2.0:
                 count += 1.0
                 w = max(1.0 / count, dt[k] / dip_tau)
-                dip_s += w * ((ax * mx + ay * my + az * mz) / (g * nm) - dip_s)
+                dip_s += w * (cos_am - dip_s)
             mag_z = -dip_s
             mag_h = np.sqrt(1.0 - dip_s * dip_s)
             # straight-line updates generated from gain + joseph (eskf_unrolled)
@@ -415,3 +416,6 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
             b_out[k, j] = b[j]
         for j in range(6):
             pdiag_out[k, j] = P[j, j]
+    for i in range(6):
+        for j in range(6):
+            P_out[i, j] = P[i, j]
