@@ -58,7 +58,8 @@ def filter_params_for(sim: AhrsSimParams, inclination_known: bool = True) -> dic
         else float(np.hypot(sim.accel_noise, sim.linear_accel_rms)),
         "mag_noise": sim.mag_noise_uT / sim.field_uT, "init_bias_std": 2 * sim.gyro_bias_std,
         "init_att_std": 0.1, "gravity": sim.gravity, "accel_gate": 0.0, "mag_gate": 0.0,
-        "inclination_known": inclination_known, "inclination": float(np.radians(sim.inclination_deg)),
+        "inclination_known": inclination_known,
+        "inclination": float(np.radians(sim.inclination_deg)),
     }
 
 
@@ -282,7 +283,8 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
             acc, _ = _simulate_pair(sim, seeds, inclination_known=known)
             tag = "known_I" if known else "estimated_I"
             row[tag] = acc
-            row[f"ratio_r3_r6_{tag}"] = acc["r3"]["attitude_rms_deg"] / acc["r6"]["attitude_rms_deg"]
+            row[f"ratio_r3_r6_{tag}"] = (acc["r3"]["attitude_rms_deg"]
+                                         / acc["r6"]["attitude_rms_deg"])
         sweep.append(row)
     res["accel_noise_sweep"] = sweep
     say("simulation with linear accelerations and a magnetic disturbance")
