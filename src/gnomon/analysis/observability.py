@@ -6,9 +6,10 @@ error and gyro bias, n = 6) stays observable with the reduced 3-component
 measurement: with ``F = [F₁ F₂; 0 0]``, ``F₁ = -[ω×]``, ``F₂ = -½I`` and
 ``D = [D₁ 0]`` the first two blocks ``[D₁ 0; D₁F₁ -½D₁]`` are already of
 rank 6 whenever ``D₁`` is non-singular. ``observability`` checks any pair
-numerically; the degenerate cases (gravity only with no rotation; the
-magnetic pole where ``tan I → ∞`` and the reduced ``D₁`` becomes
-ill-conditioned) are in the tests.
+numerically; the degenerate cases (gravity only with no rotation: rank 4; the
+magnetic pole where ``tan I → ∞``: ``det D₁`` stays 8 but one singular value
+grows like ``tan I`` and another shrinks like ``1/tan I``, so the condition
+number grows like ``tan² I`` and the numerical rank drops) are in the tests.
 """
 
 from __future__ import annotations
