@@ -209,8 +209,9 @@ def _random_inputs(rng, n):
     return gyro, acc, mag
 
 
+@pytest.mark.parametrize("lp_tau", [0.0, 0.2])
 @pytest.mark.parametrize("mode", [6, 3])
-def test_kernel_matches_reference_sample_by_sample(mode):
+def test_kernel_matches_reference_sample_by_sample(mode, lp_tau):
     from gnomon.kernels import eskf as K
 
     rng = np.random.default_rng(7)
@@ -224,11 +225,13 @@ def test_kernel_matches_reference_sample_by_sample(mode):
     s0, n0 = -0.9, 10.0
     qo, bo = np.empty((n, 4)), np.empty((n, 3))
     inn, pd, Pe = np.full((n, 6), np.nan), np.empty((n, 6)), np.empty((6, 6))
-    K.run_batch(gyro, acc, mag, dt, q0, b0, P0, vg, vb, va, vm, G, s0, n0, tau, ga, gm, mode,
+    K.run_batch(gyro, acc, mag, dt, q0, b0, P0, vg, vb, va, vm, G, s0, n0, tau, lp_tau, ga, gm,
+                mode,
                 qo, bo, inn, pd, Pe)
     meas = E.measurement_r6 if mode == 6 else E.measurement_r3
     q, b, P = q0, b0, P0
     dip = (s0, n0)
+    lp = None
     for k in range(n):
         # start every step from the kernel's previous state: a per-step comparison
         if k:
@@ -239,7 +242,10 @@ def test_kernel_matches_reference_sample_by_sample(mode):
         fm = E._gate(max(abs(np.linalg.norm(mag[k]) - 1), abs(cos_am - dip[0])), gm)
         dip = E.update_dip(*dip, acc[k], mag[k], dt[k], tau if fa < 2 and fm < 2 else 0.0, G)
         hh, zz = np.sqrt(1 - dip[0] ** 2), -dip[0]
-        y, D = meas(q, acc[k], mag[k], G, hh, zz)
+        a_k = acc[k]
+        if lp_tau > 0:
+            a_k, lp = E.accel_lowpass(q, a_k, lp, 1.0 if k == 0 else dt[k] / lp_tau)
+        y, D = meas(q, a_k, mag[k], G, hh, zz)
         if mode == 6:
             R = np.diag([va * fa] * 3 + [vm * fm] * 3)
         else:
@@ -371,6 +377,8 @@ def test_reproduce_quick_contract(tmp_path):
         assert res["time_per_step_ns"][k] > 0
     acc = res["accuracy"]
     assert acc["r3"]["attitude_rms_deg"] < 1.1 * acc["r6"]["attitude_rms_deg"]
-    assert res["time_per_update_ns"]["r3"] < res["time_per_update_ns"]["r6"]
+    # (speed ratios are not asserted: the CI machine is shared and timing is noisy there)
+    assert res["op_counts"]["r3"]["update_mul_implemented"] < res["op_counts"]["r6"][
+        "update_mul_implemented"]
     for name in ("p002_attitude.png", "p002_bias.png", "p002_cost_accuracy.png"):
         assert (tmp_path / name).stat().st_size > 10_000

@@ -51,8 +51,8 @@ __all__ = [
     "EskfParams", "EskfR6Params", "EskfR3Params", "Eskf", "EskfR6", "EskfR3",
     "transition_matrix", "process_noise", "propagate", "measurement_r6", "measurement_r3",
     "measurement_function_r6", "measurement_function_r3", "measurement_matrix_r3_nav",
-    "update", "update_dip", "initial_attitude", "reference_field", "count_gain_operations",
-    "paper_gain_operations",
+    "update", "update_dip", "accel_lowpass", "initial_attitude", "reference_field",
+    "count_gain_operations", "paper_gain_operations", "continuous_matrix",
 ]
 
 
@@ -174,6 +174,20 @@ def initial_attitude(accel_b, mag_b) -> np.ndarray:
     return quat_from_dcm(np.stack([east, north, up]))
 
 
+def accel_lowpass(q_nb, accel_b, lp_n, w: float):
+    """Low-pass of the accelerometer in the computed navigation frame.
+
+    ``lp_n ← lp_n + w (Ĉ_nb a - lp_n)`` (``lp_n`` None or ``w = 1``: restart), returns
+    ``(Ĉ_bn lp_n, lp_n)``: the filtered reading in the body frame and the new state.
+    Gravity is constant in the navigation frame while a linear acceleration averages
+    out there (cf. VQF's inertial-frame low-pass, Laidig & Seel, Inf. Fusion 2023).
+    """
+    C = dcm_from_quat(q_nb)
+    a_n = C @ np.asarray(accel_b, float)
+    lp = a_n.copy() if lp_n is None else lp_n + w * (a_n - lp_n)
+    return C.T @ lp, lp
+
+
 def update_dip(dip_s: float, count: float, accel_b, mag_b, dt: float, tau: float, g: float):
     """Running mean of ``a·m / (g |m|)`` ≈ ``cos(angle(a, m))`` = ``-Z`` of the normalised
     field (rotation invariant, so it can be averaged while the body moves; dividing by
@@ -210,8 +224,8 @@ class EskfParams(Params):
     measurement: str = param("r6", "", "measurement model: 'r6' (accel + mag residuals) "
                              "or 'r3' (a_x/g, a_y/g, m_x/H in the computed ENU frame)")
     gyro_noise: float = param(1e-3, "rad/s/√Hz", "gyro white-noise density")
-    bias_rw: float = param(1e-4, "rad/s/√s", "gyro bias random walk")
-    accel_noise: float = param(1.0, "m/s²", "accelerometer noise std per sample "
+    bias_rw: float = param(1e-5, "rad/s/√s", "gyro bias random walk")
+    accel_noise: float = param(0.3, "m/s²", "accelerometer noise std per sample "
                                "(includes unmodelled linear acceleration)")
     mag_noise: float = param(0.1, "1 (of |B0|)", "magnetometer noise std per sample, as a "
                              "fraction of the reference field magnitude")
@@ -222,11 +236,14 @@ class EskfParams(Params):
                              "TRIAD initialisation and the reference field")
     accel_gate: float = param(1.0, "m/s²", "| |a| - g | at which the accelerometer variance "
                               "is doubled (1 + (dev/gate)²); 0 disables")
-    mag_gate: float = param(0.3, "1 (of |B0|)", "deviation of |m|/|B0| from 1 or of "
+    mag_gate: float = param(0.1, "1 (of |B0|)", "deviation of |m|/|B0| from 1 or of "
                             "a·m/(g|m|) from its running mean at which the magnetometer "
                             "variance is doubled; 0 disables")
     dip_tau: float = param(30.0, "s", "time constant of the running estimate of the "
                            "inclination from the angle between a and m; 0: fixed at init")
+    accel_lowpass_tau: float = param(3.0, "s", "time constant of a low-pass of the "
+                                     "accelerometer in the computed navigation frame "
+                                     "(rejects linear acceleration); 0: off, as in the paper")
     inclination_known: bool = param(False, "", "use the given inclination instead of "
                                     "estimating it (the paper's assumption: H, Z known)")
     inclination: float = param(1.0, "rad", "magnetic inclination I (tan I = Z/H, positive "
@@ -238,7 +255,7 @@ class EskfParams(Params):
             self._require(name, getattr(self, name) >= 0.0, "must be >= 0")
         for name in ("accel_noise", "mag_noise", "gravity"):
             self._require(name, getattr(self, name) > 0.0, "must be > 0")
-        for name in ("init_time", "accel_gate", "mag_gate", "dip_tau"):
+        for name in ("init_time", "accel_gate", "mag_gate", "dip_tau", "accel_lowpass_tau"):
             self._require(name, getattr(self, name) >= 0.0, "must be >= 0")
 
 
@@ -276,6 +293,7 @@ class Eskf(Estimator):
         self.b = np.zeros(3)
         self.P = None
         self.b0_mag = None   # reference field magnitude, input unit
+        self.acc_lp = None   # low-passed accelerometer in the navigation frame, m/s²
         self.dip = None      # (running mean of cos(a, m) = -Z, sample count)
 
     def _init_state(self, accel_b, mag_b):
@@ -325,6 +343,9 @@ class Eskf(Estimator):
         tau = 0.0 if (p.inclination_known or fa >= 2.0 or fm >= 2.0) else p.dip_tau
         self.dip = update_dip(*self.dip, a, m, dt, tau, p.gravity)
         h, z = self.field
+        if p.accel_lowpass_tau > 0.0:
+            w = 1.0 if self.acc_lp is None else min(1.0, dt / p.accel_lowpass_tau)
+            a, self.acc_lp = accel_lowpass(self.q, a, self.acc_lp, w)
         meas = measurement_r6 if p.measurement == "r6" else measurement_r3
         y, D = meas(self.q, a, m, p.gravity, h, z)
         self.q, self.b, self.P, _ = update(self.q, self.b, self.P, y, D, self._R(fa, fm))
@@ -361,7 +382,7 @@ class Eskf(Estimator):
             np.ascontiguousarray(mag_T / self.b0_mag), dt, self.q.copy(), self.b.copy(),
             self.P.copy(), p.gyro_noise**2, p.bias_rw**2, p.accel_noise**2, p.mag_noise**2,
             p.gravity, self.dip[0], self.dip[1], 0.0 if p.inclination_known else p.dip_tau,
-            p.accel_gate, p.mag_gate, mode,
+            p.accel_lowpass_tau, p.accel_gate, p.mag_gate, mode,
             q_out, b_out, innov, pdiag, P_end)
         self.q, self.b, self.P = q_out[-1].copy(), b_out[-1].copy(), P_end
         r = 6 if p.measurement == "r6" else 3

@@ -340,6 +340,33 @@ def correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx):
 
 
 @njit(cache=True, fastmath=True, error_model="numpy")
+def accel_lowpass(q, ax, ay, az, lp, w, out):
+    """Low-pass the accelerometer in the computed navigation frame (in place in ``lp``).
+
+    ``lp ← lp + w (Ĉ_nb a - lp)`` (``w = 1`` restarts it), ``out = Ĉ_bn lp``: gravity
+    is constant in the navigation frame while a linear acceleration averages out there
+    (the idea of VQF's inertial-frame low-pass, Laidig & Seel 2023), so the filtered
+    reading, rotated back into the body frame, is the better gravity measurement.
+    """
+    w0, x, y_, z = q[0], q[1], q[2], q[3]
+    c00 = 1.0 - 2.0 * (y_ * y_ + z * z)
+    c01 = 2.0 * (x * y_ - w0 * z)
+    c02 = 2.0 * (x * z + w0 * y_)
+    c10 = 2.0 * (x * y_ + w0 * z)
+    c11 = 1.0 - 2.0 * (x * x + z * z)
+    c12 = 2.0 * (y_ * z - w0 * x)
+    c20 = 2.0 * (x * z - w0 * y_)
+    c21 = 2.0 * (y_ * z + w0 * x)
+    c22 = 1.0 - 2.0 * (x * x + y_ * y_)
+    lp[0] += w * (c00 * ax + c01 * ay + c02 * az - lp[0])
+    lp[1] += w * (c10 * ax + c11 * ay + c12 * az - lp[1])
+    lp[2] += w * (c20 * ax + c21 * ay + c22 * az - lp[2])
+    out[0] = c00 * lp[0] + c10 * lp[1] + c20 * lp[2]
+    out[1] = c01 * lp[0] + c11 * lp[1] + c21 * lp[2]
+    out[2] = c02 * lp[0] + c12 * lp[1] + c22 * lp[2]
+
+
+@njit(cache=True, fastmath=True, error_model="numpy")
 def gate_factor(dev, gate):
     """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``: gating off)."""
     if gate <= 0.0:
@@ -351,7 +378,7 @@ def gate_factor(dev, gate):
 # ---------------------------------------------------------------- batch
 @njit(cache=True, fastmath=True, error_model="numpy")
 def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var_mag,
-              g, dip_s0, dip_n0, dip_tau, gate_acc, gate_mag, mode,
+              g, dip_s0, dip_n0, dip_tau, acc_lp_tau, gate_acc, gate_mag, mode,
               q_out, b_out, innov_out, pdiag_out, P_out):
     """Run the filter over N samples; outputs are written into the given arrays.
 
@@ -362,7 +389,9 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     running mean ``s`` of ``a·m / (g |m|)`` (``= cos(angle(a, m)) = -Z`` without the
     bias a normalised noisy accelerometer would add), started at ``dip_s0`` with
     weight ``dip_n0`` samples, then ``s += w (cos - s)``, ``w = max(1/count, dt/dip_tau)``
-    (``dip_tau <= 0``: fixed at ``dip_s0``). mode: 0 predict only, 3 reduced,
+    (``dip_tau <= 0``: fixed at ``dip_s0``). ``acc_lp_tau > 0``: the accelerometer
+    is low-pass filtered in the computed navigation frame first (``accel_lowpass``).
+    mode: 0 predict only, 3 reduced,
     6 full measurement model.
     Outputs: q_out (N, 4), b_out (N, 3), innov_out (N, 6) (first r columns
     used), pdiag_out (N, 6), P_out (6, 6) the final covariance.
@@ -381,6 +410,8 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     dx = np.empty(6)
     dip_s = dip_s0
     count = dip_n0
+    lp = np.zeros(3)
+    acc_f = np.empty(3)
     for k in range(n):
         propagate(q, b, P, gyro[k, 0], gyro[k, 1], gyro[k, 2], dt[k], var_gyro, var_bias, A, T, U)
         if mode != MODE_PREDICT_ONLY:
@@ -397,6 +428,10 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
                 dip_s += w * (cos_am - dip_s)
             mag_z = -dip_s
             mag_h = np.sqrt(1.0 - dip_s * dip_s)
+            if acc_lp_tau > 0.0:
+                accel_lowpass(q, ax, ay, az, lp, 1.0 if k == 0 else min(1.0, dt[k] / acc_lp_tau),
+                              acc_f)
+                ax, ay, az = acc_f[0], acc_f[1], acc_f[2]
             # straight-line updates generated from gain + joseph (eskf_unrolled)
             if mode == MODE_R6:
                 measure_r6(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag,
