@@ -34,6 +34,21 @@ Both ``D`` are checked against finite differences of the measurement functions
 in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised. The
 readable functions here (numpy matrices) are the reference of the compiled
 kernel ``gnomon.kernels.eskf`` that ``run`` uses.
+
+Beyond the paper (which assumes no linear acceleration, an undisturbed field
+and known H, Z), for real data — all can be switched off by parameters:
+
+* the inclination is estimated from the data, ``-Z ≈ mean(a·m)/(g|m|)``
+  (rotation invariant; ``dip_tau``), unless ``inclination_known``;
+* the accelerometer is low-pass filtered in the computed navigation frame,
+  where gravity is constant and linear accelerations average out
+  (``accel_lowpass_tau``, default 3 s; 0 = the paper's raw accelerometer);
+* measurement variances are inflated by ``1 + (dev/gate)²`` when ``| |a| - g |``
+  (``accel_gate``) or the field magnitude / dip deviates (``mag_gate``).
+
+The defaults of those and of the noise levels were chosen on the 15 BROAD
+trials shipped with the project (``docs/estimators/eskf.md``), so the BROAD
+score is not a held-out result.
 """
 
 from __future__ import annotations
