@@ -382,3 +382,45 @@ def test_reproduce_quick_contract(tmp_path):
         "update_mul_implemented"]
     for name in ("p002_attitude.png", "p002_bias.png", "p002_cost_accuracy.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+# ---------------------------------------------------------------- simulation
+def test_simulation_truth_kinematics_and_noise_free_sensors():
+    sim = AhrsSimParams(duration_s=5.0, gyro_noise=0.0, gyro_bias_std=0.0, bias_rw=0.0,
+                        accel_noise=0.0, mag_noise_uT=0.0, inclination_deg=65.0)
+    rec = simulate_ahrs(sim, np.random.default_rng(4))
+    dt = 1.0 / sim.rate_hz
+    from gnomon.rotation import dcm_from_quat, rotvec_from_quat
+
+    # the attitude increment over each interval equals the midpoint rate times dt, up to
+    # the third-order terms (ω̈ dt³/24 and the non-commutativity ω × ω̇ dt³/12, ~1e-7 rad
+    # for |ω| ~ 1 rad/s, |ω̇| ~ 1 rad/s², dt = 0.01 s)
+    inc = rotvec_from_quat(quat_mul(quat_conj(rec.q_true[:-1]), rec.q_true[1:]))
+    np.testing.assert_allclose(inc, rec.gyro[1:] * dt, atol=5e-7)
+    # accelerometer and magnetometer are the ENU references seen in the body frame
+    C_bn = np.swapaxes(dcm_from_quat(rec.q_true), -1, -2)
+    np.testing.assert_allclose(rec.accel, C_bn @ [0, 0, sim.gravity], atol=1e-12)
+    i = np.radians(65.0)
+    np.testing.assert_allclose(rec.mag, C_bn @ [0, 50 * np.cos(i), -50 * np.sin(i)], atol=1e-12)
+
+
+def test_simulation_noise_levels():
+    sim = AhrsSimParams(duration_s=20.0, gyro_bias_std=0.0, bias_rw=0.0)
+    rec = simulate_ahrs(sim, np.random.default_rng(8))
+    from gnomon.rotation import dcm_from_quat
+
+    C_bn = np.swapaxes(dcm_from_quat(rec.q_true), -1, -2)
+    acc_err = rec.accel - C_bn @ [0, 0, sim.gravity]
+    assert np.std(acc_err) == pytest.approx(sim.accel_noise, rel=0.03)
+    gyro_err = rec.gyro - rec.extra["w_true_rad_s"]
+    assert np.std(gyro_err) == pytest.approx(sim.gyro_noise * np.sqrt(sim.rate_hz), rel=0.03)
+
+
+def test_result_independent_of_magnetometer_unit():
+    from gnomon.recording import Recording
+
+    rec = simulate_ahrs(AhrsSimParams(duration_s=5.0), np.random.default_rng(9))
+    rec_nT = Recording(t=rec.t, gyro=rec.gyro, accel=rec.accel, mag=rec.mag * 1000.0,
+                       mag_unit="nT", q_true=rec.q_true)
+    for cls in (E.EskfR6, E.EskfR3):
+        np.testing.assert_allclose(cls().run(rec_nT).q, cls().run(rec).q, atol=1e-12)

@@ -101,13 +101,16 @@ def _qmul(p, q):
                      pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
 
 
-def simulate_ahrs(params: AhrsSimParams | None = None,
-                  rng: np.random.Generator | None = None) -> Recording:
-    """Simulate a strapdown AHRS run; see the module docstring. ``rng`` is required
-    for reproducibility (a fresh ``default_rng(0)`` is used when omitted)."""
+def simulate_ahrs(params: AhrsSimParams | None, rng: np.random.Generator) -> Recording:
+    """Simulate a strapdown AHRS run (see the module docstring); ``params`` None: defaults.
+
+    All randomness (rotation profile, initial attitude, biases, noise, disturbances)
+    comes from ``rng``, so ``(params, seed)`` describes a run completely.
+    """
     p = params or AhrsSimParams()
     p.validate()
-    rng = rng if rng is not None else np.random.default_rng(0)
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
     fs = p.rate_hz
     n = int(round(p.duration_s * fs)) + 1
     t = np.arange(n) / fs
