@@ -382,6 +382,7 @@ def test_reproduce_quick_contract(tmp_path):
         "update_mul_implemented"]
     for name in ("p002_attitude.png", "p002_bias.png", "p002_cost_accuracy.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+    assert (tmp_path / "metrics.json").stat().st_size > 1000
 
 
 # ---------------------------------------------------------------- simulation

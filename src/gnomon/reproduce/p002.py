@@ -14,8 +14,8 @@ and how they are checked here:
 * measured time per step and per update of the compiled batch kernel.
 
 ``run`` returns the issue's JSON contract (plus extra keys) and, with
-``out_dir``, writes figures: ``p002_attitude.png``, ``p002_bias.png``,
-``p002_cost_accuracy.png``.
+``out_dir``, writes ``metrics.json`` and the figures ``p002_attitude.png``,
+``p002_bias.png``, ``p002_cost_accuracy.png``.
 """
 
 from __future__ import annotations
@@ -319,7 +319,10 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
                                "files": [Path(r.source).name for r in recs],
                                "total_deg": scores}
     if out_dir is not None:
+        import json
+
         _figures(Path(out_dir), res, rec_fig, ests_fig)
+        (Path(out_dir) / "metrics.json").write_text(json.dumps(res, indent=2, default=float))
     return res
 
 
