@@ -1,9 +1,8 @@
 """Compiled kernels of the error-state AHRS Kalman filter (seed 002, Bilous & Nesterenko).
 
 Readable twin: ``gnomon.estimators.eskf`` (numpy matrices); the tests compare the
-two sample by sample. Everything here is scalar loops over small fixed-size
-arrays, written so that numba (LLVM) can unroll them, and exploiting the
-structure of the problem:
+two sample by sample. Everything here is scalar arithmetic on small fixed-size
+arrays, exploiting the structure of the problem:
 
 * the transition matrix ``Φ = [A  cI; 0  I]`` (``A = I - [ω̂×]dt``, ``c = -dt/2``)
   is never formed as a 6x6 matrix;
@@ -12,10 +11,14 @@ structure of the problem:
 * the innovation covariance is factorised ``S = L·diag(d)·Lᵀ`` (no square roots),
   and only the upper triangles of symmetric matrices are computed.
 
-``gain`` is deliberately a plain Python function compiled with ``njit`` below:
+``gain`` and ``joseph`` are deliberately plain Python functions (compiled with
+``njit`` below as the loop version ``correct``):
 ``gnomon.estimators.eskf.count_gain_operations`` runs the very same source on
 counting numbers to report how many multiplications and additions the
-implementation performs (next to the paper's formula).
+implementation performs (next to the paper's formula), and
+``gnomon.kernels._codegen_eskf`` traces them into the straight-line functions
+``eskf_unrolled.update_r3`` / ``update_r6`` that the batch run ``run_batch``
+uses (every intermediate a local scalar: about 2x faster than the loops).
 
 Frames and units as in ``gnomon.estimators.eskf``: ``q = q_nb`` (ENU from body,
 ``[w, x, y, z]``), gyro rad/s, accelerometer m/s², magnetometer normalised by
@@ -41,9 +44,9 @@ def gain(P, D1, Rd, r, PDt, S, K):
     """Kalman gain ``K = P Dᵀ (D P Dᵀ + R)⁻¹`` for ``D = [D1 0]`` (r x 6, bias columns zero).
 
     P (6, 6) covariance; D1 (r, 3) attitude columns of D; Rd (r,) diagonal of R.
-    Scratch/outputs (caller-allocated): PDt (6, r) = P Dᵀ, S (r, r) receives the
-    factor: unit lower-triangular L below the diagonal and ``d`` on it
-    (``S = L diag(d) Lᵀ``), K (6, r) the gain.
+    Scratch/outputs (caller-allocated): PDt (6, r) = P Dᵀ; S (r, r) receives the
+    factorisation ``S = L diag(d) Lᵀ`` (L unit lower-triangular) stored as
+    ``S[i, j] = L_ij d_j`` below the diagonal and ``1/d_j`` on it; K (6, r) the gain.
 
     Plain Python on purpose: compiled below as ``gain_nb`` and also run on
     counting numbers by ``count_gain_operations``.
@@ -73,13 +76,14 @@ def gain(P, D1, Rd, r, PDt, S, K):
             S[i, j] = s
     # K S = PDt, one row of K at a time: K_i L diag(d) Lᵀ = PDt_i
     for i in range(6):
-        # forward: w L diag(d) ... w_j = (p_j - sum_k<j w_k L_jk d_k) / d_j
+        # forward, z Lᵀ = PDt_i with z = K_i L diag(d); stored w = z / d:
+        # w_j = (p_j - sum_{k<j} w_k L_jk d_k) / d_j
         for j in range(r):
             s = PDt[i, j]
             for k in range(j):
                 s = s - K[i, k] * S[j, k]
             K[i, j] = s * S[j, j]
-        # back: K_i Lᵀ... k_j = w_j - sum_m>j k_m L_mj
+        # back, K_i L = w: k_j = w_j - sum_{m>j} k_m L_mj
         for j in range(r - 2, -1, -1):
             s = K[i, j + 1] * S[j + 1, j]
             for m in range(j + 2, r):
@@ -96,8 +100,8 @@ def propagate(q, b, P, wx_m, wy_m, wz_m, dt, var_gyro, var_bias, A, T, U):
     """One strapdown step in place: ``q ← q ⊗ exp(ω̂ dt)``, ``P ← Φ P Φᵀ + Q``.
 
     ``ω̂ = ω_measured - b`` (rad/s, body). ``Φ = [A  cI; 0  I]``, ``A = I - [ω̂×] dt``,
-    ``c = -dt/2``; ``Q = diag(var_gyro dt / 4 · I, var_bias dt · I)`` with
-    ``var_gyro`` (rad/s)²/Hz and ``var_bias`` (rad/s²)²/Hz... i.e. densities squared.
+    ``c = -dt/2``; ``Q = diag(var_gyro dt / 4 · I, var_bias dt · I)`` with the
+    squared densities ``var_gyro`` ((rad/s)²/Hz) and ``var_bias`` ((rad/s)²/s).
     A, T, U are (3, 3) scratch arrays.
     """
     wx = wx_m - b[0]

@@ -4,7 +4,7 @@ Straight-line twins of ``gnomon.kernels.eskf.gain`` + ``joseph`` for r = 3 and
 r = 6 measurements (n = 6 states), traced from their source so that the
 arithmetic is identical; tested against the loop versions and the numpy
 reference in ``tests/test_eskf.py``.
-Source hash of gain+joseph: 8b55ae65c73a40cd
+Source hash of gain+joseph: 6bbd1999b6728db1
 """
 
 from numba import njit
