@@ -13,6 +13,8 @@ from gnomon.errors import InputError
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
     "tilt-cf": "gnomon.estimators.complementary:TiltComplementaryFilter",
+    "eskf-r6": "gnomon.estimators.eskf:EskfR6",
+    "eskf-r3": "gnomon.estimators.eskf:EskfR3",
 }
 
 
