@@ -8,7 +8,7 @@ import pytest
 from gnomon.errors import InputError
 from gnomon.rotation import dcm_from_quat, quat_conj, quat_mul, quat_rotate, rotvec_from_quat
 from gnomon.scenarios import Scenario, describe, list_presets, load_scenario, simulate
-from gnomon.scenarios.simulate import build_orbit
+from gnomon.scenarios.simulator import build_orbit
 
 DEG = np.pi / 180.0
 

@@ -118,8 +118,8 @@ def describe() -> list[tuple[str, str, str, Any, str]]:
 
 
 def simulate(scenario: Scenario | str | pathlib.Path, rng_seed: int | None = None):
-    """Run a scenario; see :func:`gnomon.scenarios.simulate.simulate`."""
-    from gnomon.scenarios.simulate import simulate as _simulate
+    """Run a scenario; see :func:`gnomon.scenarios.simulator.simulate`."""
+    from gnomon.scenarios.simulator import simulate as _simulate
 
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
