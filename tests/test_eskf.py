@@ -227,7 +227,7 @@ def test_kernel_matches_reference_sample_by_sample(mode, lp_tau):
     inn, pd, Pe = np.full((n, 6), np.nan), np.empty((n, 6)), np.empty((6, 6))
     K.run_batch(gyro, acc, mag, dt, q0, b0, P0, vg, vb, va, vm, G, s0, n0, tau, lp_tau, ga, gm,
                 mode,
-                qo, bo, inn, pd, Pe)
+                qo, bo, inn, pd, Pe, np.zeros(3), False, np.empty(6), np.empty(n, np.bool_))
     meas = E.measurement_r6 if mode == 6 else E.measurement_r3
     q, b, P = q0, b0, P0
     dip = (s0, n0)

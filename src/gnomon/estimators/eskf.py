@@ -59,14 +59,15 @@ import numpy as np
 
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.initial import initial_attitude
 from gnomon.recording import Recording
-from gnomon.rotation import dcm_from_quat, quat_from_dcm, quat_from_rotvec, quat_mul, skew
+from gnomon.rotation import dcm_from_quat, quat_from_rotvec, quat_mul, skew
 
 __all__ = [
     "EskfParams", "EskfR6Params", "EskfR3Params", "Eskf", "EskfR6", "EskfR3",
     "transition_matrix", "process_noise", "propagate", "measurement_r6", "measurement_r3",
     "measurement_function_r6", "measurement_function_r3", "measurement_matrix_r3_nav",
-    "update", "update_dip", "accel_lowpass", "initial_attitude", "reference_field",
+    "update", "update_dip", "accel_lowpass", "reference_field",
     "count_gain_operations", "paper_gain_operations", "continuous_matrix",
 ]
 
@@ -167,28 +168,6 @@ def update(q, b, P, y, D, R):
 
 
 # ---------------------------------------------------------------- initialisation
-def initial_attitude(accel_b, mag_b) -> np.ndarray:
-    """TRIAD with up (accelerometer) and north (horizontal field): ``q_nb`` (4,), ENU from body.
-
-    ``up = a/|a|``, ``east = (m × up)/|m × up|``, ``north = up × east``;
-    ``C_nb`` has rows east, north, up. Raises ``InputError`` when the vectors are parallel.
-    """
-    a = np.asarray(accel_b, float)
-    m = np.asarray(mag_b, float)
-    na = np.linalg.norm(a)
-    if na == 0.0:
-        raise InputError("zero accelerometer reading at initialisation", field="accel")
-    up = a / na
-    e = np.cross(m, up)
-    ne = np.linalg.norm(e)
-    if ne < 1e-9 * max(np.linalg.norm(m), 1e-300):
-        raise InputError("magnetometer parallel to gravity (or zero) at initialisation: "
-                         "heading undefined", field="mag")
-    east = e / ne
-    north = np.cross(up, east)
-    return quat_from_dcm(np.stack([east, north, up]))
-
-
 def accel_lowpass(q_nb, accel_b, lp_n, w: float):
     """Low-pass of the accelerometer in the computed navigation frame.
 
@@ -302,6 +281,7 @@ class Eskf(Estimator):
     summary = "error-state quaternion KF AHRS, full or reduced measurement (seed 002)"
     Params = EskfParams
     needs = ("gyro", "accel", "mag")
+    state_fields = ("q", "b", "P", "b0_mag", "acc_lp", "dip", "t_last")
 
     def reset(self) -> None:
         self.q = None
@@ -310,20 +290,29 @@ class Eskf(Estimator):
         self.b0_mag = None   # reference field magnitude, input unit
         self.acc_lp = None   # low-passed accelerometer in the navigation frame, m/s²
         self.dip = None      # (running mean of cos(a, m) = -Z, sample count)
+        self.t_last = None   # s, last sample processed by ``run``
 
     def _init_state(self, accel_b, mag_b):
-        """Initialise from windows ``accel_b``, ``mag_b`` (k, 3) of the first samples."""
+        """Initialise from windows ``accel_b``, ``mag_b`` (k, 3) of the first samples.
+
+        Rows with a zero accelerometer or magnetometer vector (dropouts) are left
+        out; without any usable row the attitude starts at the identity with a
+        reference field of inclination 60° until the data say otherwise.
+        """
         p = self.params
         a = np.atleast_2d(np.asarray(accel_b, float))
         m = np.atleast_2d(np.asarray(mag_b, float))
-        q0 = initial_attitude(a.mean(0), m.mean(0))
-        self.q = q0
+        na, nm = np.linalg.norm(a, axis=1), np.linalg.norm(m, axis=1)
+        ok = (na > 0) & (nm > 0)
+        self.q = initial_attitude(a[ok], m[ok], samples=len(a)) if ok.any() else \
+            np.array([1.0, 0.0, 0.0, 0.0])
         self.b = np.zeros(3)
-        self.b0_mag = float(np.linalg.norm(m, axis=1).mean())
-        cos = np.sum(a * m, 1) / (p.gravity * np.linalg.norm(m, axis=1))
-        self.dip = (float(cos.mean()), float(len(cos)))
+        self.b0_mag = float(nm[nm > 0].mean()) if (nm > 0).any() else 1.0
+        cos = np.sum(a[ok] * m[ok], 1) / (p.gravity * nm[ok])
+        self.dip = ((float(cos.mean()), float(len(cos))) if ok.any()
+                    else (-float(np.sin(np.radians(60.0))), 1.0))
         if p.inclination_known:
-            self.dip = (-float(np.sin(p.inclination)), float(len(cos)))
+            self.dip = (-float(np.sin(p.inclination)), float(max(len(cos), 1)))
         if abs(self.dip[0]) >= 1.0 - 1e-9:
             raise InputError("magnetometer parallel to gravity at initialisation: "
                              "heading undefined", field="mag")
@@ -352,6 +341,9 @@ class Eskf(Estimator):
         m = np.asarray(mag_b, float) / self.b0_mag
         a = np.asarray(accel_b, float)
         self.q, self.P = propagate(self.q, self.b, self.P, gyro_b, dt, p.gyro_noise, p.bias_rw)
+        if not (np.linalg.norm(a) > 0 and np.linalg.norm(m) > 0):  # dropout: propagate only
+            self.innovation = np.zeros(6 if p.measurement == "r6" else 3)
+            return self.q.copy()
         fa = _gate(abs(np.linalg.norm(a) - p.gravity), p.accel_gate)
         cos_am = (a @ m) / (p.gravity * np.linalg.norm(m))
         fm = _gate(max(abs(np.linalg.norm(m) - 1.0), abs(cos_am - self.dip[0])), p.mag_gate)
@@ -368,7 +360,8 @@ class Eskf(Estimator):
         return self.q.copy()
 
     def run(self, rec: Recording) -> Estimate:
-        """Filter a whole recording (compiled kernel); the state is reset first.
+        """Filter a whole recording (compiled kernel), continuing from the current state
+        (a fresh or reset filter starts anew).
 
         Initialisation: TRIAD on the mean accelerometer and magnetometer over the
         first ``init_time`` seconds (at least one sample); the reference field
@@ -378,19 +371,22 @@ class Eskf(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        self.reset()
-        n_init = max(1, int(np.searchsorted(rec.t, rec.t[0] + p.init_time, side="right")))
         mag_T = rec.mag_tesla
-        self._init_state(rec.accel[:n_init], mag_T[:n_init])
         dt = np.empty(len(rec))
-        dt[0] = 0.0
+        dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
+        if self.q is None:
+            n_init = max(1, int(np.searchsorted(rec.t, rec.t[0] + p.init_time, side="right")))
+            self._init_state(rec.accel[:n_init], mag_T[:n_init])
         n = len(rec)
         q_out = np.empty((n, 4))
         b_out = np.empty((n, 3))
-        innov = np.full((n, 6), np.nan)
+        innov = np.zeros((n, 6))
         pdiag = np.empty((n, 6))
         P_end = np.empty((6, 6))
+        state_end = np.empty(6)
+        skipped = np.zeros(n, np.bool_)
+        lp0 = np.zeros(3) if self.acc_lp is None else np.asarray(self.acc_lp, float)
         mode = kern.MODE_R6 if p.measurement == "r6" else kern.MODE_R3
         kern.run_batch(
             np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
@@ -398,13 +394,18 @@ class Eskf(Estimator):
             self.P.copy(), p.gyro_noise**2, p.bias_rw**2, p.accel_noise**2, p.mag_noise**2,
             p.gravity, self.dip[0], self.dip[1], 0.0 if p.inclination_known else p.dip_tau,
             p.accel_lowpass_tau, p.accel_gate, p.mag_gate, mode,
-            q_out, b_out, innov, pdiag, P_end)
+            q_out, b_out, innov, pdiag, P_end, lp0, self.acc_lp is not None, state_end,
+            skipped)
         self.q, self.b, self.P = q_out[-1].copy(), b_out[-1].copy(), P_end
+        self.dip = (float(state_end[0]), float(state_end[1]))
+        self.acc_lp = state_end[2:5].copy() if state_end[5] else None
+        self.t_last = float(rec.t[-1])
         r = 6 if p.measurement == "r6" else 3
         return Estimate(
             t=rec.t.copy(), q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": "ENU", "body": rec.frames.get("body", "sensor")},
-            signals={"bias_rad_s": b_out, "innovation": innov[:, :r], "cov_diag": pdiag},
+            signals={"bias_rad_s": b_out, "innovation": innov[:, :r], "cov_diag": pdiag,
+                     "update_skipped": skipped},
         )
 
 

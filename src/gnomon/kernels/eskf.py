@@ -383,7 +383,8 @@ def gate_factor(dev, gate):
 @njit(cache=True, fastmath=True, error_model="numpy")
 def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var_mag,
               g, dip_s0, dip_n0, dip_tau, acc_lp_tau, gate_acc, gate_mag, mode,
-              q_out, b_out, innov_out, pdiag_out, P_out):
+              q_out, b_out, innov_out, pdiag_out, P_out, lp0, lp_started0, state_out,
+              skipped_out):
     """Run the filter over N samples; outputs are written into the given arrays.
 
     gyro, accel (N, 3) rad/s and m/s²; mag (N, 3) normalised by the reference
@@ -397,8 +398,13 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     is low-pass filtered in the computed navigation frame first (``accel_lowpass``).
     mode: 0 predict only, 3 reduced,
     6 full measurement model.
+    ``lp0`` (3,): the low-pass state of an earlier run, used when ``lp_started0`` (else the
+    low-pass starts at the first sample; no NaN sentinel: this kernel uses fastmath).
+    A sample whose accelerometer or magnetometer vector is zero (a dropout) is only
+    propagated: ``skipped_out[k]`` is set and its innovation row left as given.
     Outputs: q_out (N, 4), b_out (N, 3), innov_out (N, 6) (first r columns
-    used), pdiag_out (N, 6), P_out (6, 6) the final covariance.
+    used), pdiag_out (N, 6), P_out (6, 6) the final covariance, ``state_out`` (6,)
+    the final ``[dip_s, dip_count, lp_x, lp_y, lp_z, lp_started]`` (to continue later).
     """
     n = gyro.shape[0]
     q = q0.copy()
@@ -414,15 +420,20 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     dx = np.empty(6)
     dip_s = dip_s0
     count = dip_n0
-    lp = np.zeros(3)
+    lp = lp0.copy()
+    lp_started = lp_started0
     acc_f = np.empty(3)
     for k in range(n):
         propagate(q, b, P, gyro[k, 0], gyro[k, 1], gyro[k, 2], dt[k], var_gyro, var_bias, A, T, U)
+        skipped_out[k] = False
         if mode != MODE_PREDICT_ONLY:
             ax, ay, az = accel[k, 0], accel[k, 1], accel[k, 2]
             mx, my, mz = mag[k, 0], mag[k, 1], mag[k, 2]
             na = np.sqrt(ax * ax + ay * ay + az * az)
             nm = np.sqrt(mx * mx + my * my + mz * mz)
+            if not (na > 0.0 and nm > 0.0):
+                skipped_out[k] = True
+        if mode != MODE_PREDICT_ONLY and not skipped_out[k]:
             cos_am = (ax * mx + ay * my + az * mz) / (g * nm)
             fa = gate_factor(abs(na - g), gate_acc)
             fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - dip_s)), gate_mag)
@@ -433,8 +444,11 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
             mag_z = -dip_s
             mag_h = np.sqrt(1.0 - dip_s * dip_s)
             if acc_lp_tau > 0.0:
-                accel_lowpass(q, ax, ay, az, lp, 1.0 if k == 0 else min(1.0, dt[k] / acc_lp_tau),
-                              acc_f)
+                if not lp_started:
+                    lp[:] = 0.0
+                accel_lowpass(q, ax, ay, az, lp,
+                              min(1.0, dt[k] / acc_lp_tau) if lp_started else 1.0, acc_f)
+                lp_started = True
                 ax, ay, az = acc_f[0], acc_f[1], acc_f[2]
             # straight-line updates generated from gain + joseph (eskf_unrolled)
             if mode == MODE_R6:
@@ -458,3 +472,9 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
     for i in range(6):
         for j in range(6):
             P_out[i, j] = P[i, j]
+    state_out[5] = 1.0 if lp_started else 0.0
+    state_out[0] = dip_s
+    state_out[1] = count
+    state_out[2] = lp[0]
+    state_out[3] = lp[1]
+    state_out[4] = lp[2]

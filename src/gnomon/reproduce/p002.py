@@ -148,13 +148,14 @@ def _time_kernel(n_steps: int, repeats: int = 5) -> dict:
     inn = np.empty((n_steps, 6))
     pd = np.empty((n_steps, 6))
     Pe = np.empty((6, 6))
+    lp0, st, sk = np.zeros(3), np.empty(6), np.empty(n_steps, np.bool_)
     best = {}
     for _ in range(repeats):
         for name, mode in (("predict", 0), ("r6", 6), ("r3", 3)):
             t0 = time.perf_counter()
             kern.run_batch(gyro, acc, mag, dt, q0, b0, P0, sim.gyro_noise**2, 1e-10,
                            sim.accel_noise**2, 0.006**2, 9.81, -np.sin(np.radians(60.0)),
-                           10.0, 30.0, 0.0, 1.0, 0.3, mode, qo, bo, inn, pd, Pe)
+                           10.0, 30.0, 0.0, 1.0, 0.3, mode, qo, bo, inn, pd, Pe, lp0, False, st, sk)
             ns = (time.perf_counter() - t0) / n_steps * 1e9
             best[name] = min(best.get(name, np.inf), ns)
     return best
