@@ -12,6 +12,8 @@ from gnomon.errors import InputError
 
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
+    "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
+    "qcf": "gnomon.estimators.qcf:QuaternionCF",
 }
 
 

@@ -279,9 +279,9 @@ def _gn_jac(q, v, A):
 
 
 @njit(cache=True)
-def _solve4(N, g, x):
-    """Solve N x = g (4x4, symmetric positive definite) by Cholesky; False if not PD."""
-    L = np.zeros((4, 4))
+def _solve4(N, g, x, L, y):
+    """Solve N x = g (4x4, symmetric positive definite) by Cholesky (buffers L (4, 4), y (4,));
+    False if not positive definite."""
     for i in range(4):
         for j in range(i + 1):
             s = N[i, j]
@@ -293,7 +293,6 @@ def _solve4(N, g, x):
                 L[i, i] = math.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
-    y = np.empty(4)
     for i in range(4):
         s = g[i]
         for k in range(i):
@@ -329,8 +328,11 @@ def gn_sequence(r1, b1, r2, b2, w1, w2, valid, q0, iterations, min_quality, q_ou
     g = np.empty(4)
     dq = np.empty(4)
     pred = np.empty(3)
+    L = np.zeros((4, 4))
+    y4 = np.empty(4)
     q = q0
-    ki_now = ki
+    a1 = 0.5
+    a2 = 0.5
     for i in range(n):
         ok = _unit_pair(b1[i], r1[i], ub1, ur1) and valid[i] \
             and _unit_pair(b2[i], r2[i], ub2, ur2)
@@ -371,7 +373,7 @@ def gn_sequence(r1, b1, r2, b2, w1, w2, valid, q0, iterations, min_quality, q_ou
                         for c in range(4):
                             Nm[a, c] += wt * (A[0, a] * A[0, c] + A[1, a] * A[1, c]
                                               + A[2, a] * A[2, c])
-                if not _solve4(Nm, g, dq):
+                if not _solve4(Nm, g, dq, L, y4):
                     break
                 s = 0.0
                 for a in range(4):
@@ -387,3 +389,14 @@ def gn_sequence(r1, b1, r2, b2, w1, w2, valid, q0, iterations, min_quality, q_ou
         ok_out[i] = ok
         for a in range(4):
             q_out[i, a] = q[a]
+
+
+@njit(cache=True)
+def integrate_rates_batch(dt, w, out):
+    """out[k] = out[k-1] ⊗ exp(w[k] dt[k]), out[0] = identity (rates in the moving axes)."""
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    for i in range(dt.shape[0]):
+        if i > 0:
+            _rotate_by(q, w[i, 0] * dt[i], w[i, 1] * dt[i], w[i, 2] * dt[i])
+        for j in range(4):
+            out[i, j] = q[j]
