@@ -14,6 +14,7 @@ _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
     "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
     "qcf": "gnomon.estimators.qcf:QuaternionCF",
+    "mekf-spacecraft": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
 }
 
 

@@ -400,3 +400,152 @@ def integrate_rates_batch(dt, w, out):
             _rotate_by(q, w[i, 0] * dt[i], w[i, 1] * dt[i], w[i, 2] * dt[i])
         for j in range(4):
             out[i, j] = q[j]
+
+
+@njit(cache=True)
+def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt):
+    """One vector measurement (unit body ub, unit reference uo) into the MEKF state."""
+    _to_body(q, uo[0], uo[1], uo[2], tmp)  # predicted body direction m̂
+    # H = [[m̂×], 0] (3x6); residual y = ub − m̂
+    mx, my, mz = tmp[0], tmp[1], tmp[2]
+    H = np.zeros((3, 6))
+    H[0, 1] = -mz
+    H[0, 2] = my
+    H[1, 0] = mz
+    H[1, 2] = -mx
+    H[2, 0] = -my
+    H[2, 1] = mx
+    for a in range(6):
+        for c in range(3):
+            s = 0.0
+            for k in range(3):
+                s += P[a, k] * H[c, k]
+            PHt[a, c] = s
+    for a in range(3):
+        for c in range(3):
+            s = 0.0
+            for k in range(3):
+                s += H[a, k] * PHt[k, c]
+            S[a, c] = s + (sigma * sigma if a == c else 0.0)
+    det = (S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1])
+           - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
+           + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]))
+    if not (det > 0.0 and det < 1e300):
+        return False
+    Sinv[0, 0] = (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]) / det
+    Sinv[0, 1] = (S[0, 2] * S[2, 1] - S[0, 1] * S[2, 2]) / det
+    Sinv[0, 2] = (S[0, 1] * S[1, 2] - S[0, 2] * S[1, 1]) / det
+    Sinv[1, 0] = (S[1, 2] * S[2, 0] - S[1, 0] * S[2, 2]) / det
+    Sinv[1, 1] = (S[0, 0] * S[2, 2] - S[0, 2] * S[2, 0]) / det
+    Sinv[1, 2] = (S[0, 2] * S[1, 0] - S[0, 0] * S[1, 2]) / det
+    Sinv[2, 0] = (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]) / det
+    Sinv[2, 1] = (S[0, 1] * S[2, 0] - S[0, 0] * S[2, 1]) / det
+    Sinv[2, 2] = (S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]) / det
+    for a in range(6):
+        for c in range(3):
+            s = 0.0
+            for k in range(3):
+                s += PHt[a, k] * Sinv[k, c]
+            K[a, c] = s
+    y0, y1, y2 = ub[0] - mx, ub[1] - my, ub[2] - mz
+    dx = np.empty(6)
+    for a in range(6):
+        dx[a] = K[a, 0] * y0 + K[a, 1] * y1 + K[a, 2] * y2
+    # P <- P − K H P  (then symmetrised)
+    for a in range(6):
+        for c in range(6):
+            s = 0.0
+            for k in range(3):
+                s += K[a, k] * PHt[c, k]
+            P[a, c] -= s
+    for a in range(6):
+        for c in range(a + 1, 6):
+            m = 0.5 * (P[a, c] + P[c, a])
+            P[a, c] = m
+            P[c, a] = m
+    _rotate_by(q, dx[0], dx[1], dx[2])
+    bias[0] += dx[3]
+    bias[1] += dx[4]
+    bias[2] += dx[5]
+    return True
+
+
+@njit(cache=True)
+def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias, P,
+               sigma_mag, sigma_sec, arw, bias_rw, max_dt, q_out, bias_out, flags):
+    """Multiplicative EKF (Lefferts, Markley & Shuster 1982) with gyro bias, vector pairs.
+
+    Error state ``[θ, δb]`` (q = q̂ ⊗ exp(θ), body frame); propagation
+    ``θ̇ = −[(ω_ib − b̂)×] θ − δb`` (the ``−R_bo ω_io`` term's attitude dependence
+    included), ``P ← Φ P Φᵀ + diag(arw² dt, bias_rw² dt)``; sequential unit-vector
+    updates with ``H = [[m̂×], 0]``, noise ``sigma_mag`` / ``sigma_sec`` (rad). The
+    magnetometer pair alone makes the bias observable as the field direction
+    turns. ``P`` (6, 6) is updated in place. Flags as ``ecf_batch``.
+    """
+    n = dt.shape[0]
+    ub = np.empty(3)
+    uo = np.empty(3)
+    tmp = np.empty(3)
+    K = np.empty((6, 3))
+    S = np.empty((3, 3))
+    Sinv = np.empty((3, 3))
+    PHt = np.empty((6, 3))
+    Phi = np.empty((6, 6))
+    PP = np.empty((6, 6))
+    for i in range(n):
+        for j in range(4):
+            flags[i, j] = 0
+        h = dt[i]
+        if h > 0.0 and h < 1e300:
+            g = gyro[i]
+            if not _propagate(q, bias, h, g, w_io_o[i], tmp):
+                flags[i, 3] = 1
+                wx = wy = wz = 0.0
+            else:
+                wx, wy, wz = g[0] - bias[0], g[1] - bias[1], g[2] - bias[2]
+            # Phi = I + F h, F = [[-[w×], -I], [0, 0]]
+            for a in range(6):
+                for c in range(6):
+                    Phi[a, c] = 1.0 if a == c else 0.0
+            Phi[0, 1] = wz * h
+            Phi[0, 2] = -wy * h
+            Phi[1, 0] = -wz * h
+            Phi[1, 2] = wx * h
+            Phi[2, 0] = wy * h
+            Phi[2, 1] = -wx * h
+            Phi[0, 3] = -h
+            Phi[1, 4] = -h
+            Phi[2, 5] = -h
+            for a in range(6):
+                for c in range(6):
+                    s = 0.0
+                    for k in range(6):
+                        s += Phi[a, k] * P[k, c]
+                    PP[a, c] = s
+            for a in range(6):
+                for c in range(6):
+                    s = 0.0
+                    for k in range(6):
+                        s += PP[a, k] * Phi[c, k]
+                    P[a, c] = s
+            for a in range(3):
+                P[a, a] += arw * arw * h
+                P[3 + a, 3 + a] += bias_rw * bias_rw * h
+            if h > max_dt:
+                flags[i, 2] = 1
+                flags[i, 3] = 1
+            else:
+                ok_m = _unit_pair(mag_b[i], mag_o[i], ub, uo)
+                if ok_m:
+                    ok_m = _mekf_update(q, bias, P, ub, uo, sigma_mag, tmp, K, S, Sinv, PHt)
+                ok_s = sec_valid[i] and _unit_pair(sec_b[i], sec_o[i], ub, uo)
+                if ok_s:
+                    ok_s = _mekf_update(q, bias, P, ub, uo, sigma_sec, tmp, K, S, Sinv, PHt)
+                flags[i, 0] = 0 if ok_m else 1
+                flags[i, 1] = 0 if ok_s else 1
+                if not (ok_m or ok_s):
+                    flags[i, 3] = 1
+        for j in range(4):
+            q_out[i, j] = q[j]
+        for j in range(3):
+            bias_out[i, j] = bias[j]
