@@ -277,28 +277,28 @@ def quest(r, b, w=None, min_quality: float = DEFAULT_MIN_QUALITY,
           newton_iterations: int = 6) -> WahbaResult:
     """QUEST (Shuster & Oh 1981) with sequential rotations near 180°.
 
-    The reference frame is rotated by 180° about x, y or z when the Rodrigues
-    denominator is small (|q_w| of the solution < 0.1 after normalisation), and
-    the rotation is composed back: ``q_rb = q_rr' ⊗ q_r'b``.
+    The reference frame is also rotated by 180° about x, y and z, and the
+    candidate with the largest Rodrigues denominator |γ| is kept when the
+    unrotated one is poorly conditioned; the rotation is composed back:
+    ``q_rb = q_rr' ⊗ q_r'b``.
     """
     r, b, w, n_ok = _prepare(r, b, w)
     B = _profile(r, b, w)
     best = None
-    best_w = None
+    best_g = None
     for flip in _FLIPS:
         # r' = R_r'r r with q_r'r = conj(flip); B' = R_r'r B
         R_fr = dcm_from_quat(quat_conj(flip))
         qp = _quest_core(R_fr @ B, newton_iterations)
+        g = np.abs(qp[..., 0])  # |γ|: the Rodrigues denominator, larger is better conditioned
         n = np.linalg.norm(qp, axis=-1, keepdims=True)
-        qp = qp / np.where(n > 0, n, 1.0)
-        q = quat_mul(flip, qp)
-        wabs = np.abs(qp[..., 0]) * (n[..., 0] > 0)
+        q = quat_mul(flip, qp / np.where(n > 0, n, 1.0))
         if best is None:
-            best, best_w = q, wabs
+            best, best_g = q, g
         else:
-            take = (best_w < 0.1) & (wabs > best_w)
+            take = (best_g < 0.3 * (n[..., 0] + 1e-300)) & (g > best_g)
             best = np.where(take[..., None], q, best)
-            best_w = np.where(take, wabs, best_w)
+            best_g = np.where(take, g, best_g)
     return _finish(best, r, b, w, n_ok, min_quality, "quest", B=B)
 
 
