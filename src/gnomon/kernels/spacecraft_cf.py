@@ -174,10 +174,11 @@ def qcf_batch(dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q, bias, kp, ki,
 
     ``q_mes`` (N, 4) q_ob measured (any Wahba solver), ``mes_valid`` (N,) bool.
     Correction: ``e = conj(q̂) ⊗ q_mes`` (sign chosen so that e_w >= 0), PI on its
-    vector part: ``q̂ <- q̂ ⊗ exp(kp vec(e) dt)``, ``bias -= ki vec(e) dt``. Without a usable q_mes but with a usable magnetic pair
-    the filter falls back to the explicit single-vector correction with
-    ``kp_single``, ``ki_single`` (the magnetometer + gyro filter; set both to
-    0 to coast on the gyro). Flags as in ``ecf_batch`` (column 1: q_mes unusable).
+    vector part: ``q̂ <- q̂ ⊗ exp(kp vec(e) dt)``, ``bias -= ki vec(e) dt``. Without a
+    usable q_mes but with a usable magnetic pair the filter falls back to the
+    explicit single-vector correction with ``kp_single``, ``ki_single`` (the
+    magnetometer + gyro filter; set both to 0 to coast on the gyro). Flags as in
+    ``ecf_batch`` (column 1: q_mes unusable).
     """
     n = dt.shape[0]
     ubm = np.empty(3)

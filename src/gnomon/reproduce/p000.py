@@ -64,6 +64,7 @@ SOLVER_NAMES = ("gauss-newton", "quest", "davenport", "svd", "triad")
 def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: float | None = None):
     """The ``seed000`` preset with the Monte Carlo draw of ``seed`` (see module docstring)."""
     from gnomon.scenarios import load_scenario
+
     # the submodule, not the package attribute: importing gnomon.scenarios.simulate
     # rebinds gnomon.scenarios.simulate to the module (reported to the world's owner)
     from gnomon.scenarios.simulate import simulate
@@ -288,7 +289,8 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
 
     paper_sl, amp = sun_loss_stats("qcf", pap_p)
     improved_sl, _ = sun_loss_stats("mekf", mekf_p)
-    improved_sl["method"] = "mekf-spacecraft (magnetometer + gyro MEKF, bias from the turning field)"
+    improved_sl["method"] = ("mekf-spacecraft (magnetometer + gyro MEKF, bias from the "
+                             "turning field)")
     paper_sl["method"] = "qcf with S = B delayed by M = 500 samples (paper)"
     sun_loss = {"paper": paper_sl, "improved": improved_sl,
                 "true_attitude_amplitude_deg": dict(zip(("roll", "pitch", "yaw"),
@@ -323,8 +325,8 @@ def _figures(out_dir, case, ecf_p, qcf_p, sg_case, sl_case, pap_p, mekf_p):
     for kind, params, col in (("ecf", ecf_p, "C0"), ("qcf", qcf_p, "C3")):
         err = np.degrees(axis_errors_rad(case.rec.q_true, case.run(kind, **params)))
         for k in range(3):
-            axes[k].plot(t_orb, err[:, k], col, lw=0.7,
-                         label=f"{kind.upper()} Kp={params['kp_rad_s']:g} Ki={params['ki_per_s']:g}")
+            lab = f"{kind.upper()} Kp={params['kp_rad_s']:g} Ki={params['ki_per_s']:g}"
+            axes[k].plot(t_orb, err[:, k], col, lw=0.7, label=lab)
     for k in range(3):
         axes[k].axvline(np.interp(case.t_step, case.rec.t, t_orb), color="k", ls="--", lw=0.8)
         axes[k].set_ylabel(f"{names[k]} error (deg)")
