@@ -404,30 +404,22 @@ def integrate_rates_batch(dt, w, out):
 
 
 @njit(cache=True)
-def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt):
+def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt, dx):
     """One vector measurement (unit body ub, unit reference uo) into the MEKF state."""
     _to_body(q, uo[0], uo[1], uo[2], tmp)  # predicted body direction m̂
     # H = [[m̂×], 0] (3x6); residual y = ub − m̂
     mx, my, mz = tmp[0], tmp[1], tmp[2]
-    H = np.zeros((3, 6))
-    H[0, 1] = -mz
-    H[0, 2] = my
-    H[1, 0] = mz
-    H[1, 2] = -mx
-    H[2, 0] = -my
-    H[2, 1] = mx
     for a in range(6):
-        for c in range(3):
-            s = 0.0
-            for k in range(3):
-                s += P[a, k] * H[c, k]
-            PHt[a, c] = s
+        PHt[a, 0] = -mz * P[a, 1] + my * P[a, 2]
+        PHt[a, 1] = mz * P[a, 0] - mx * P[a, 2]
+        PHt[a, 2] = -my * P[a, 0] + mx * P[a, 1]
+    s2 = sigma * sigma
+    for c in range(3):
+        S[0, c] = -mz * PHt[1, c] + my * PHt[2, c]
+        S[1, c] = mz * PHt[0, c] - mx * PHt[2, c]
+        S[2, c] = -my * PHt[0, c] + mx * PHt[1, c]
     for a in range(3):
-        for c in range(3):
-            s = 0.0
-            for k in range(3):
-                s += H[a, k] * PHt[k, c]
-            S[a, c] = s + (sigma * sigma if a == c else 0.0)
+        S[a, a] += s2
     det = (S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1])
            - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
            + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]))
@@ -449,7 +441,6 @@ def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt):
                 s += PHt[a, k] * Sinv[k, c]
             K[a, c] = s
     y0, y1, y2 = ub[0] - mx, ub[1] - my, ub[2] - mz
-    dx = np.empty(6)
     for a in range(6):
         dx[a] = K[a, 0] * y0 + K[a, 1] * y1 + K[a, 2] * y2
     # P <- P − K H P  (then symmetrised)
@@ -491,8 +482,9 @@ def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
     S = np.empty((3, 3))
     Sinv = np.empty((3, 3))
     PHt = np.empty((6, 3))
-    Phi = np.empty((6, 6))
+    A = np.empty((3, 3))
     PP = np.empty((6, 6))
+    dx = np.empty(6)
     for i in range(n):
         for j in range(4):
             flags[i, j] = 0
@@ -504,31 +496,26 @@ def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
                 wx = wy = wz = 0.0
             else:
                 wx, wy, wz = g[0] - bias[0], g[1] - bias[1], g[2] - bias[2]
-            # Phi = I + F h, F = [[-[w×], -I], [0, 0]]
-            for a in range(6):
-                for c in range(6):
-                    Phi[a, c] = 1.0 if a == c else 0.0
-            Phi[0, 1] = wz * h
-            Phi[0, 2] = -wy * h
-            Phi[1, 0] = -wz * h
-            Phi[1, 2] = wx * h
-            Phi[2, 0] = wy * h
-            Phi[2, 1] = -wx * h
-            Phi[0, 3] = -h
-            Phi[1, 4] = -h
-            Phi[2, 5] = -h
-            for a in range(6):
-                for c in range(6):
-                    s = 0.0
-                    for k in range(6):
-                        s += Phi[a, k] * P[k, c]
-                    PP[a, c] = s
-            for a in range(6):
-                for c in range(6):
-                    s = 0.0
-                    for k in range(6):
-                        s += PP[a, k] * Phi[c, k]
-                    P[a, c] = s
+            # Phi = [[A, -h I], [0, I]], A = I - h [w×]; P <- Phi P Phiᵀ by blocks
+            A[0, 0] = 1.0
+            A[0, 1] = wz * h
+            A[0, 2] = -wy * h
+            A[1, 0] = -wz * h
+            A[1, 1] = 1.0
+            A[1, 2] = wx * h
+            A[2, 0] = wy * h
+            A[2, 1] = -wx * h
+            A[2, 2] = 1.0
+            for c in range(6):  # PP = Phi P
+                for a in range(3):
+                    PP[a, c] = (A[a, 0] * P[0, c] + A[a, 1] * P[1, c] + A[a, 2] * P[2, c]
+                                - h * P[3 + a, c])
+                    PP[3 + a, c] = P[3 + a, c]
+            for a in range(6):  # P = PP Phiᵀ
+                for c in range(3):
+                    P[a, c] = (PP[a, 0] * A[c, 0] + PP[a, 1] * A[c, 1] + PP[a, 2] * A[c, 2]
+                               - h * PP[a, 3 + c])
+                    P[a, 3 + c] = PP[a, 3 + c]
             for a in range(3):
                 P[a, a] += arw * arw * h
                 P[3 + a, 3 + a] += bias_rw * bias_rw * h
@@ -538,10 +525,10 @@ def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
             else:
                 ok_m = _unit_pair(mag_b[i], mag_o[i], ub, uo)
                 if ok_m:
-                    ok_m = _mekf_update(q, bias, P, ub, uo, sigma_mag, tmp, K, S, Sinv, PHt)
+                    ok_m = _mekf_update(q, bias, P, ub, uo, sigma_mag, tmp, K, S, Sinv, PHt, dx)
                 ok_s = sec_valid[i] and _unit_pair(sec_b[i], sec_o[i], ub, uo)
                 if ok_s:
-                    ok_s = _mekf_update(q, bias, P, ub, uo, sigma_sec, tmp, K, S, Sinv, PHt)
+                    ok_s = _mekf_update(q, bias, P, ub, uo, sigma_sec, tmp, K, S, Sinv, PHt, dx)
                 flags[i, 0] = 0 if ok_m else 1
                 flags[i, 1] = 0 if ok_s else 1
                 if not (ok_m or ok_s):
