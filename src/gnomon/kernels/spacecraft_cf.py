@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rotate_by(q, rx, ry, rz):
     """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place (rotation vector, rad, body)."""
     th = math.sqrt(rx * rx + ry * ry + rz * rz)
@@ -51,7 +51,7 @@ def _rotate_by(q, rx, ry, rz):
     q[3] = nz * s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _to_body(q, vx, vy, vz, out):
     """out = R_obᵀ v (orbital -> body) for unit q = q_ob."""
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -63,7 +63,7 @@ def _to_body(q, vx, vy, vz, out):
         + (1.0 - 2.0 * (x * x + y * y)) * vz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _unit_pair(vb, vo, ub, uo):
     """Normalise a body/reference pair into ub, uo; False if either is zero or non-finite."""
     nb = math.sqrt(vb[0] * vb[0] + vb[1] * vb[1] + vb[2] * vb[2])
@@ -76,7 +76,7 @@ def _unit_pair(vb, vo, ub, uo):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _propagate(q, bias, dt, g, w_io_o, tmp):
     """Predict: q <- q ⊗ exp((ω_ib − R_bo ω_io − b̂) dt); False (no motion) if the gyro is bad."""
     gx, gy, gz = g[0], g[1], g[2]
@@ -88,7 +88,7 @@ def _propagate(q, bias, dt, g, w_io_o, tmp):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _vector_error(q, ub, uo, weight, e, tmp):
     """e += weight * ub × (R_bo uo)  (Mahony's explicit correction, body frame)."""
     _to_body(q, uo[0], uo[1], uo[2], tmp)
@@ -97,7 +97,7 @@ def _vector_error(q, ub, uo, weight, e, tmp):
     e[2] += weight * (ub[0] * tmp[1] - ub[1] * tmp[0])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ecf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
               kp, ki, kp_single, ki_single, k_mag, k_sec, max_dt, min_sin,
               q_out, bias_out, flags):
@@ -167,7 +167,7 @@ def ecf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
             bias_out[i, j] = bias[j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def qcf_batch(dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q, bias, kp, ki,
               kp_single, ki_single, max_dt, q_out, bias_out, flags):
     """Complementary filter driven by a measured quaternion (seed 000's proposal).
@@ -242,7 +242,7 @@ def qcf_batch(dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q, bias, kp, ki,
             bias_out[i, j] = bias[j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rot_unnorm(q, v, out):
     w, ux, uy, uz = q[0], q[1], q[2], q[3]
     uu = ux * ux + uy * uy + uz * uz
@@ -255,7 +255,7 @@ def _rot_unnorm(q, v, out):
     out[2] = (w * w - uu) * v[2] + 2.0 * uv * uz + 2.0 * w * cz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gn_jac(q, v, A):
     """A (3, 4) = ∂(R(q) v)/∂q of the unnormalised quadratic form."""
     w, ux, uy, uz = q[0], q[1], q[2], q[3]
@@ -279,7 +279,7 @@ def _gn_jac(q, v, A):
     A[2, 2] -= 2.0 * w * v[0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve4(N, g, x, L, y):
     """Solve N x = g (4x4, symmetric positive definite) by Cholesky (buffers L (4, 4), y (4,));
     False if not positive definite."""
@@ -307,7 +307,7 @@ def _solve4(N, g, x, L, y):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gn_sequence(r1, b1, r2, b2, w1, w2, valid, q0, iterations, min_quality, q_out, ok_out):
     """Seed 000's Gauss-Newton ("recursive least squares") q_ob measurement per sample.
 
@@ -392,7 +392,7 @@ def gn_sequence(r1, b1, r2, b2, w1, w2, valid, q0, iterations, min_quality, q_ou
             q_out[i, a] = q[a]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate_rates_batch(dt, w, out):
     """out[k] = out[k-1] ⊗ exp(w[k] dt[k]), out[0] = identity (rates in the moving axes)."""
     q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -403,7 +403,7 @@ def integrate_rates_batch(dt, w, out):
             out[i, j] = q[j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt, dx):
     """One vector measurement (unit body ub, unit reference uo) into the MEKF state."""
     _to_body(q, uo[0], uo[1], uo[2], tmp)  # predicted body direction m̂
@@ -462,7 +462,7 @@ def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt, dx):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias, P,
                sigma_mag, sigma_sec, arw, bias_rw, max_dt, q_out, bias_out, flags):
     """Multiplicative EKF (Lefferts, Markley & Shuster 1982) with gyro bias, vector pairs.
