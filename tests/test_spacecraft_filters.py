@@ -196,7 +196,10 @@ def test_reproduction_quick_meets_targets():
         assert set(t[k]) >= {"kp", "ki", "mean_rms_deg", "p95_rms_deg"}
     # fair comparison: within a few percent of each other (the check found 1-2 %)
     assert 0.9 < t["ratio_ecf_over_qcf"] < 1.1
-    assert t["drift_step"]["qcf_rms_deg"] < 1.1 * t["drift_step"]["ecf_rms_deg"]
+    # after the drift step, with gains chosen for it (within 5 % of the best overall RMS),
+    # the two are equivalent (the explicit filter's integral acts with 2 K_I about c)
+    d = t["drift_aware"]
+    assert 0.8 < d["qcf"]["drift_rms_deg"] / d["ecf"]["drift_rms_deg"] < 1.2
     # same gain: the paper's ratio reappears, and the c axis carries it
     sg = r["same_gain"]
     assert sg["ratio_ecf_over_qcf"] >= 2.0
