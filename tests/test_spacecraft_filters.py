@@ -213,3 +213,14 @@ def test_reproduction_quick_meets_targets():
     s = r["solvers"]
     for name in ("quest", "davenport", "svd"):
         assert abs(s[name]["rms_error_deg"] - s["gauss-newton"]["rms_error_deg"]) < 1e-3
+
+
+def test_initial_attitude_ignores_substituted_sun_pairs():
+    from gnomon.estimators.ecf_spacecraft import initial_q_ob
+
+    rec = spacecraft(n=800, w_ob_b=(0.002, 0.0, 0.0))
+    valid = np.ones(len(rec), bool)
+    valid[:600] = False  # sun lost at the start: the delayed pair exists from sample 100
+    rec = dataclasses.replace(rec, sun_valid=valid)
+    q0 = initial_q_ob(vector_pairs(rec, "delayed", delay_samples=100))
+    assert np.degrees(error_angle_rad(rec.q_true[600], q0)) < 1e-6

@@ -176,10 +176,12 @@ def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples:
 
 
 def initial_q_ob(pairs: dict, k: int | None = None) -> np.ndarray:
-    """``q_ob`` from the first sample with two usable, non-parallel pairs (TRIAD, sun first).
+    """``q_ob`` from the first sample with a real (not substituted) sun pair and a usable,
+    non-parallel magnetic pair (TRIAD, sun first), searched among the first ``k`` samples.
 
     Identity (the orbital frame) when there is none — the seed-000 satellite is
-    stabilised close to it.
+    stabilised close to it. The attitude of that sample initialises the filter at
+    its first sample (the satellite turns slowly).
     """
     from gnomon.estimators.wahba import triad
 
@@ -187,8 +189,9 @@ def initial_q_ob(pairs: dict, k: int | None = None) -> np.ndarray:
     b = np.stack([pairs["sec_b"], pairs["mag_b"]], axis=1)
     w = np.stack([pairs["sec_valid"].astype(float), np.ones(len(r))], axis=1)
     stop = len(r) if k is None else k
+    real = pairs["sec_valid"] & ~pairs.get("substituted", np.zeros(len(r), bool))
     for i in range(min(stop, len(r))):
-        if not pairs["sec_valid"][i]:
+        if not real[i]:
             continue
         res = triad(r[i], b[i], w[i])
         if not res.degenerate:
