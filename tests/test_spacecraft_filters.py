@@ -71,6 +71,10 @@ def _reference_run(f, rec, pairs, q0, q_mes=None, ok=None):
         if isinstance(f, QuaternionCF):
             out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i], q_mes[i],
                               ok[i], pairs["mag_b"][i], pairs["mag_o"][i])
+        elif isinstance(f, MagGyroMEKF):
+            out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i],
+                              pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
+                              pairs["sec_o"][i], pairs["sec_valid"][i], pairs["substituted"][i])
         else:
             out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i],
                               pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
@@ -101,9 +105,10 @@ def test_kernels_match_readable_references(substitute):
     assert np.all(np.isfinite(est.q))
     if substitute == "none":
         assert est.signals["mes_unusable"][220] and est.signals["mes_unusable"][300]
-    mekf = MagGyroMEKF(sigma_mag_rad=0.01)
+    mekf_sub = "none" if substitute == "none" else "delayed"
+    mekf = MagGyroMEKF(sigma_mag_rad=0.01, sun_substitute=mekf_sub, delay_samples=100)
     est = mekf.run(rec, q0=q0)
-    pairs_m = vector_pairs(rec, "none", 1)
+    pairs_m = vector_pairs(rec, mekf_sub, 100)
     ref = _reference_run(MagGyroMEKF(mekf.params), rec, pairs_m, q0)
     assert np.max(np.abs(est.q - ref)) < 1e-10
     assert np.all(np.isfinite(est.q))

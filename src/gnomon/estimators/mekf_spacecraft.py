@@ -19,8 +19,14 @@ Estimate ``q_ob``; error state ``[θ, δb]`` with ``q = q̂ ⊗ exp(θ)`` (body 
         K = P Hᵀ (H P Hᵀ + σ² I)⁻¹,  [θ; δb] = K (v_b − m̂),  P ← (I − K H) P
 
 The sun pair is used where valid (``sigma_sun_rad``); the magnetometer always
-(``sigma_mag_rad`` ≈ noise / |B|). Bad input as in the complementary filters
-(unusable vectors skipped and flagged, gaps propagate only, never a NaN).
+(``sigma_mag_rad`` ≈ noise / |B|). Where the sun is invalid and
+``sun_substitute="delayed"``, the paper's substitute (the magnetometer pair of
+``delay_samples`` ago) is used as well, with the noise
+``sqrt(σ_mag² + (swing_gain·Δ)²)``, Δ the filter's own attitude change over those
+samples: exact for a satellite that keeps its attitude in the orbital frame
+(small swing, where it beats the magnetometer alone), ignored when it swings.
+Bad input as in the complementary filters (unusable vectors skipped and
+flagged, gaps propagate only, never a NaN).
 """
 
 from __future__ import annotations
@@ -43,11 +49,17 @@ class MagGyroMEKFParams(Params):
                                  "(noise/|B| plus field-model error)")
     sigma_sun_rad: float = param(0.005, "rad", "direction noise of the sun pair")
     arw_rad_rt_s: float = param(2e-5, "rad/sqrt(s)", "gyro angle random walk (process noise)")
-    bias_rw_rad_s_rt_s: float = param(1e-6, "rad/s/sqrt(s)", "gyro bias random walk "
+    bias_rw_rad_s_rt_s: float = param(3e-7, "rad/s/sqrt(s)", "gyro bias random walk "
                                       "(lets the filter follow drift steps)")
     sigma0_att_rad: float = param(0.2, "rad", "initial attitude standard deviation")
     sigma0_bias_rad_s: float = param(1e-3, "rad/s", "initial bias standard deviation")
     use_sun: bool = param(True, "", "use the sun pair where it is valid")
+    sun_substitute: str = param("delayed", "", "where the sun is invalid: none (magnetometer "
+                                "alone) | delayed (also the paper's delayed pair, weighted "
+                                "by the estimated swing)")
+    delay_samples: int = param(500, "samples", "M of the delayed magnetometer pair")
+    swing_gain: float = param(4.0, "", "the delayed pair's noise grows by this times the "
+                              "estimated attitude change over M samples (rad)")
     orbital_rate_rad_s: float = param(0.0, "rad/s", "mean motion n if the recording has no "
                                       "extra['w_io_o']")
     max_dt_s: float = param(10.0, "s", "longer sample intervals are gaps: propagation only")
@@ -58,6 +70,10 @@ class MagGyroMEKFParams(Params):
         for name in ("arw_rad_rt_s", "bias_rw_rad_s_rt_s", "orbital_rate_rad_s"):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
         self._require("max_dt_s", self.max_dt_s > 0, "must be > 0")
+        self._require("sun_substitute", self.sun_substitute in ("none", "delayed"),
+                      "must be none or delayed")
+        self._require("delay_samples", self.delay_samples >= 1, "must be >= 1")
+        self._require("swing_gain", self.swing_gain >= 0, "must be >= 0")
 
 
 class MagGyroMEKF(Estimator):
@@ -71,6 +87,7 @@ class MagGyroMEKF(Estimator):
 
     def reset(self) -> None:
         p = self.params
+        self.history = []  # past estimates (for the delayed pair's weight)
         self.q = None
         self.bias = np.zeros(3)
         self.P = np.diag([p.sigma0_att_rad ** 2] * 3 + [p.sigma0_bias_rad_s ** 2] * 3)
@@ -94,8 +111,19 @@ class MagGyroMEKF(Estimator):
         self.bias = self.bias + dx[3:]
         return True
 
-    def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
-        """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
+    def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid,
+               substituted=False) -> np.ndarray:
+        """One sample (readable reference of the kernel). Returns ``q_ob`` (4,).
+
+        ``substituted``: the second pair is the paper's delayed magnetometer pair.
+        """
+        q = self._update(dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted)
+        self.history.append(q.copy())
+        if len(self.history) > self.params.delay_samples:
+            self.history.pop(0)
+        return q
+
+    def _update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted):
         p = self.params
         if self.q is None:
             self.q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -117,7 +145,16 @@ class MagGyroMEKF(Estimator):
             self.flags.update(gap=True, coast=True)
             return self.q
         ok_m = self._vector_update(mag_b, mag_o, p.sigma_mag_rad)
-        ok_s = bool(sec_valid) and self._vector_update(sec_b, sec_o, p.sigma_sun_rad)
+        sigma = p.sigma_sun_rad
+        use_s = bool(sec_valid)
+        if use_s and substituted:
+            if len(self.history) >= p.delay_samples:
+                old = self.history[-p.delay_samples]
+                swing = 2.0 * np.arccos(min(1.0, abs(float(old @ self.q))))
+                sigma = np.sqrt(p.sigma_mag_rad ** 2 + (p.swing_gain * swing) ** 2)
+            else:
+                use_s = False
+        ok_s = use_s and self._vector_update(sec_b, sec_o, sigma)
         self.flags.update(mag_unusable=not ok_m, sun_unusable=not ok_s,
                           coast=self.flags["coast"] or not (ok_m or ok_s))
         return self.q
@@ -128,7 +165,7 @@ class MagGyroMEKF(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        pairs = vector_pairs(rec, "none", 1, p.orbital_rate_rad_s)
+        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s)
         if not p.use_sun:
             pairs["sec_valid"] = np.zeros(len(rec), bool)
         if q0 is not None:
@@ -143,9 +180,10 @@ class MagGyroMEKF(Estimator):
         state_b = np.array(self.bias, float)
         state_P = np.array(self.P, float)
         mekf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], pairs["mag_b"], pairs["mag_o"],
-                   pairs["sec_b"], pairs["sec_o"], pairs["sec_valid"], state_q, state_b,
-                   state_P, p.sigma_mag_rad, p.sigma_sun_rad, p.arw_rad_rt_s,
-                   p.bias_rw_rad_s_rt_s, p.max_dt_s, q_out, b_out, flags)
+                   pairs["sec_b"], pairs["sec_o"], pairs["sec_valid"], pairs["substituted"],
+                   p.delay_samples, p.swing_gain, state_q, state_b, state_P, p.sigma_mag_rad,
+                   p.sigma_sun_rad, p.arw_rad_rt_s, p.bias_rw_rad_s_rt_s, p.max_dt_s, q_out,
+                   b_out, flags)
         self.q, self.bias, self.P = state_q, state_b, state_P
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),

@@ -463,8 +463,9 @@ def _mekf_update(q, bias, P, ub, uo, sigma, tmp, K, S, Sinv, PHt, dx):
 
 
 @njit(cache=True, error_model="numpy")
-def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias, P,
-               sigma_mag, sigma_sec, arw, bias_rw, max_dt, q_out, bias_out, flags):
+def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted, delay,
+               swing_gain, q, bias, P, sigma_mag, sigma_sec, arw, bias_rw, max_dt, q_out,
+               bias_out, flags):
     """Multiplicative EKF (Lefferts, Markley & Shuster 1982) with gyro bias, vector pairs.
 
     Error state ``[θ, δb]`` (q = q̂ ⊗ exp(θ), body frame); propagation
@@ -472,7 +473,11 @@ def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
     included), ``P ← Φ P Φᵀ + diag(arw² dt, bias_rw² dt)``; sequential unit-vector
     updates with ``H = [[m̂×], 0]``, noise ``sigma_mag`` / ``sigma_sec`` (rad). The
     magnetometer pair alone makes the bias observable as the field direction
-    turns. ``P`` (6, 6) is updated in place. Flags as ``ecf_batch``.
+    turns. Second-pair samples flagged ``substituted`` (the paper's magnetometer
+    pair delayed by ``delay`` samples) are used with the noise
+    ``sqrt(sigma_mag² + (swing_gain·Δ)²)``, Δ the angle between the estimate now and
+    ``delay`` samples ago (the pair is exact only if the satellite kept its attitude
+    in the orbital frame). ``P`` (6, 6) is updated in place. Flags as ``ecf_batch``.
     """
     n = dt.shape[0]
     ub = np.empty(3)
@@ -527,8 +532,18 @@ def mekf_batch(dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, q, bias,
                 if ok_m:
                     ok_m = _mekf_update(q, bias, P, ub, uo, sigma_mag, tmp, K, S, Sinv, PHt, dx)
                 ok_s = sec_valid[i] and _unit_pair(sec_b[i], sec_o[i], ub, uo)
+                sig = sigma_sec
+                if ok_s and substituted[i]:
+                    if i >= delay:
+                        j = i - delay
+                        c = abs(q[0] * q_out[j, 0] + q[1] * q_out[j, 1] + q[2] * q_out[j, 2]
+                                + q[3] * q_out[j, 3])
+                        swing = 2.0 * math.acos(min(1.0, c))
+                        sig = math.sqrt(sigma_mag * sigma_mag + (swing_gain * swing) ** 2)
+                    else:
+                        ok_s = False
                 if ok_s:
-                    ok_s = _mekf_update(q, bias, P, ub, uo, sigma_sec, tmp, K, S, Sinv, PHt, dx)
+                    ok_s = _mekf_update(q, bias, P, ub, uo, sig, tmp, K, S, Sinv, PHt, dx)
                 flags[i, 0] = 0 if ok_m else 1
                 flags[i, 1] = 0 if ok_s else 1
                 if not (ok_m or ok_s):

@@ -59,11 +59,20 @@ QCF_GRID = {k: [2 * v for v in vals] for k, vals in ECF_GRID.items()}
 SUN_LOSS_GRID = {"kp": [0.005, 0.01, 0.02, 0.05, 0.1], "ki": [1e-6, 1e-5, 1e-4]}
 MEKF_GRID = {"sigma_mag_rad": [0.01, 0.03], "arw_rad_rt_s": [2e-5, 2e-4],
              "bias_rw_rad_s_rt_s": [3e-7, 1e-6, 3e-6]}
+HYBRID_GRID = {**MEKF_GRID, "swing_gain": [2.0, 4.0, 8.0]}
+MOTION_SCALES = (0.0, 0.25, 0.5, 1.0)
 SOLVER_NAMES = ("gauss-newton", "quest", "davenport", "svd", "triad")
 
 
-def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: float | None = None):
-    """The ``seed000`` preset with the Monte Carlo draw of ``seed`` (see module docstring)."""
+def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: float | None = None,
+                  motion_scale: float = 1.0):
+    """The ``seed000`` preset with the Monte Carlo draw of ``seed`` (see module docstring).
+
+    ``motion_scale`` scales the initial attitude and rate (preset and draw) and the
+    residual magnetic dipole, which set the amplitude of the satellite's swing about
+    the orbital frame (1: the preset, about ±15/10/46° roll/pitch/yaw; 0: about
+    ±3/2/6°).
+    """
     from gnomon.scenarios import load_scenario
 
     # the submodule, not the package attribute: importing gnomon.scenarios.simulate
@@ -74,8 +83,11 @@ def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: floa
     rng = np.random.default_rng(seed)
     euler = np.asarray(sc.get("initial.attitude_euler_deg"), float) + rng.uniform(-5, 5, 3)
     rate = np.asarray(sc.get("initial.rate_ob_deg_s"), float) + rng.uniform(-0.02, 0.02, 3)
-    over = {"seed": int(seed), "initial.attitude_euler_deg": euler.tolist(),
-            "initial.rate_ob_deg_s": rate.tolist()}
+    dipole = np.asarray(sc.get("spacecraft.residual_dipole_A_m2"), float)
+    over = {"seed": int(seed), "initial.attitude_euler_deg": (motion_scale * euler).tolist(),
+            "initial.rate_ob_deg_s": (motion_scale * rate).tolist()}
+    if motion_scale != 1.0:
+        over["spacecraft.residual_dipole_A_m2"] = (motion_scale * dipole).tolist()
     if duration_s is not None:
         over["duration_s"] = float(duration_s)
     if mag_noise_nT is not None:
@@ -217,9 +229,10 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
                                     p["mag_o"], one.copy(), np.zeros(3), 0.1, 6e-4, 0.0, 0.0,
                                     10.0, q_out, b_out, flags))
     t_mekf = timed(lambda: mekf_batch(p["dt"], p["gyro"], p["w_io_o"], p["mag_b"], p["mag_o"],
-                                      p["sec_b"], p["sec_o"], p["sec_valid"], one.copy(),
-                                      np.zeros(3), np.diag([0.04] * 3 + [1e-6] * 3), 0.01,
-                                      0.005, 2e-4, 3e-7, 10.0, q_out, b_out, flags))
+                                      p["sec_b"], p["sec_o"], p["sec_valid"], p["substituted"],
+                                      500, 4.0, one.copy(), np.zeros(3),
+                                      np.diag([0.04] * 3 + [1e-6] * 3), 0.01, 0.005, 2e-5,
+                                      3e-7, 10.0, q_out, b_out, flags))
     return {"samples": n, "ecf": n / t_ecf, "gauss_newton": n / t_gn, "qcf_filter": n / t_qcf,
             "qcf": n / (t_gn + t_qcf), "mekf": n / t_mekf}
 
@@ -372,12 +385,14 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
                                       "ki_per_s": SUN_LOSS_GRID["ki"]},
                      fixed={"sun_substitute": "delayed", "delay_samples": 500,
                             "kp_single_rad_s": 0.0, "ki_single_per_s": 0.0})
-    mekf_p, _ = _tune(tune_sl, "mekf", MEKF_GRID)
+    mekf_p, _ = _tune(tune_sl, "mekf", HYBRID_GRID,
+                      fixed={"sun_substitute": "delayed", "delay_samples": 500})
+    mag_only_p, _ = _tune(tune_sl, "mekf", MEKF_GRID, fixed={"sun_substitute": "none"})
     say(f"paper {pap_p} improved {mekf_p}")
 
-    def sun_loss_stats(kind, params):
+    def sun_loss_stats(kind, params, cases=None):
         rms, mx, amp = [], [], []
-        for c in report_sl:
+        for c in (report_sl if cases is None else cases):
             q = c.run(kind, **params)
             rms.append(c.score(q))
             mx.append(np.degrees(np.abs(axis_errors_rad(c.rec.q_true, q)[c.mask]).max(0)))
@@ -402,10 +417,43 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
     dg_sl["method"] = "qcf with the delayed field pair carried to t by the raw gyro (spec)"
     paper_sl, amp = sun_loss_stats("qcf", pap_p)
     improved_sl, _ = sun_loss_stats("mekf", mekf_p)
-    improved_sl["method"] = ("mekf-spacecraft (magnetometer + gyro MEKF, bias from the "
-                             "turning field)")
+    improved_sl["method"] = ("mekf-spacecraft: magnetometer + gyro MEKF (bias from the turning "
+                             "field) plus the paper's delayed pair weighted by the estimated "
+                             "swing over M samples")
+    mag_only_sl, _ = sun_loss_stats("mekf", mag_only_p)
+    mag_only_sl["method"] = "mekf-spacecraft with the magnetometer pair alone"
     paper_sl["method"] = "qcf with S = B delayed by M = 500 samples (paper)"
+    # how the paper's bound depends on the satellite's swing (unknown in the paper): the
+    # paper's method and the hybrid MEKF retuned at each amplitude on the tuning seeds
+    # (``improved_preset_gains``: the MEKF with the gains tuned on the preset)
+    say("sun loss vs amplitude")
+    sweep = []
+    for scale in ([0.0] if quick else MOTION_SCALES):
+        t_cases = [_Case(simulate_seed(sd, duration, motion_scale=scale), sun_lost=True)
+                   for sd in tune_seeds]
+        r_cases = [_Case(simulate_seed(sd, duration, motion_scale=scale), sun_lost=True)
+                   for sd in report_seeds[:8]]
+        p_s, _ = _tune(t_cases, "qcf", {"kp_rad_s": SUN_LOSS_GRID["kp"],
+                                        "ki_per_s": SUN_LOSS_GRID["ki"]},
+                       fixed={"sun_substitute": "delayed", "delay_samples": 500,
+                              "kp_single_rad_s": 0.0, "ki_single_per_s": 0.0})
+        h_s, _ = _tune(t_cases, "mekf", HYBRID_GRID,
+                       fixed={"sun_substitute": "delayed", "delay_samples": 500})
+        row = {"motion_scale": scale, "runs": len(r_cases)}
+        for label, kind, params in (("paper", "qcf", p_s), ("improved", "mekf", h_s),
+                                    ("improved_preset_gains", "mekf", mekf_p),
+                                    ("mekf_mag_only", "mekf", mag_only_p)):
+            st, amp_s = sun_loss_stats(kind, params, r_cases)
+            row[label] = {k: st[k] for k in ("rms_deg", "max_abs_error_deg",
+                                             "max_abs_error_deg_worst",
+                                             "within_paper_bound_fraction")}
+            row[label]["params"] = params
+        row["true_attitude_amplitude_deg"] = dict(zip(("roll", "pitch", "yaw"),
+                                                      map(float, amp_s), strict=True))
+        sweep.append(row)
     sun_loss = {"paper": paper_sl, "improved": improved_sl, "delayed_gyro": dg_sl,
+                "mekf_mag_only": mag_only_sl,
+                "amplitude_sweep": sweep,
                 "true_attitude_amplitude_deg": dict(zip(("roll", "pitch", "yaw"),
                                                         map(float, amp), strict=True)),
                 "outage": "sun_valid false for the whole run (drift step inside)"}
@@ -475,7 +523,8 @@ def _figures(out_dir, case, ecf_p, qcf_p, sg_case, sl_case, pap_p, mekf_p):
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     t3 = sl_case.rec.extra["time_orbits"]
     for kind, params, col, lab in (("qcf", pap_p, "C1", "paper: delayed field M=500"),
-                                   ("mekf", mekf_p, "C2", "gnomon: mag+gyro MEKF")):
+                                   ("mekf", mekf_p, "C2",
+                                    "gnomon: MEKF, mag + swing-weighted delayed pair")):
         err = np.degrees(axis_errors_rad(sl_case.rec.q_true, sl_case.run(kind, **params)))
         for k in range(3):
             axes[k].plot(t3, err[:, k], col, lw=0.7, label=lab)
