@@ -65,8 +65,9 @@ SUN_SUBSTITUTES = ("delayed", "delayed-gyro", "none")
 
 @dataclass(frozen=True)
 class SpacecraftCFParams(Params):
-    kp_rad_s: float = param(0.1, "rad/s", "proportional gain K_P (both pairs usable)")
-    ki_per_s: float = param(1e-3, "rad/s^2", "integral gain K_I (gyro drift estimation)")
+    kp_rad_s: float = param(0.03, "rad/s", "proportional gain K_P (both pairs usable; "
+                             "tuned on seed000)")
+    ki_per_s: float = param(3e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
     kp_single_rad_s: float = param(0.005, "rad/s", "K_P when only one vector pair is usable")
     ki_single_per_s: float = param(2e-5, "rad/s^2", "K_I when only one vector pair is usable")
     k_mag: float = param(1.0, "", "weight of the magnetometer pair")

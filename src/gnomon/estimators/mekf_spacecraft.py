@@ -45,11 +45,11 @@ __all__ = ["MagGyroMEKFParams", "MagGyroMEKF"]
 
 @dataclass(frozen=True)
 class MagGyroMEKFParams(Params):
-    sigma_mag_rad: float = param(0.01, "rad", "direction noise of the magnetometer pair "
+    sigma_mag_rad: float = param(0.03, "rad", "direction noise of the magnetometer pair "
                                  "(noise/|B| plus field-model error)")
     sigma_sun_rad: float = param(0.005, "rad", "direction noise of the sun pair")
     arw_rad_rt_s: float = param(2e-5, "rad/sqrt(s)", "gyro angle random walk (process noise)")
-    bias_rw_rad_s_rt_s: float = param(3e-7, "rad/s/sqrt(s)", "gyro bias random walk "
+    bias_rw_rad_s_rt_s: float = param(1e-6, "rad/s/sqrt(s)", "gyro bias random walk "
                                       "(lets the filter follow drift steps)")
     sigma0_att_rad: float = param(0.2, "rad", "initial attitude standard deviation")
     sigma0_bias_rad_s: float = param(1e-3, "rad/s", "initial bias standard deviation")
@@ -58,7 +58,7 @@ class MagGyroMEKFParams(Params):
                                 "alone) | delayed (also the paper's delayed pair, weighted "
                                 "by the estimated swing)")
     delay_samples: int = param(500, "samples", "M of the delayed magnetometer pair")
-    swing_gain: float = param(4.0, "", "the delayed pair's noise grows by this times the "
+    swing_gain: float = param(8.0, "", "the delayed pair's noise grows by this times the "
                               "estimated attitude change over M samples (rad)")
     orbital_rate_rad_s: float = param(0.0, "rad/s", "mean motion n if the recording has no "
                                       "extra['w_io_o']")

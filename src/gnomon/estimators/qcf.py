@@ -54,8 +54,9 @@ __all__ = ["QuaternionCFParams", "QuaternionCF", "measured_quaternions",
 
 @dataclass(frozen=True)
 class QuaternionCFParams(Params):
-    kp_rad_s: float = param(0.2, "rad/s", "proportional gain K_P on vec(conj(q̂) ⊗ q_mes)")
-    ki_per_s: float = param(2e-3, "rad/s^2", "integral gain K_I (gyro drift estimation)")
+    kp_rad_s: float = param(0.06, "rad/s", "proportional gain K_P on vec(conj(q̂) ⊗ q_mes) "
+                             "(tuned on seed000)")
+    ki_per_s: float = param(6e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
     kp_single_rad_s: float = param(0.005, "rad/s", "K_P of the magnetometer-only correction "
                                    "when there is no q_mes")
     ki_single_per_s: float = param(2e-5, "rad/s^2", "K_I of the magnetometer-only correction")
