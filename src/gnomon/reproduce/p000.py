@@ -337,7 +337,11 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
         mk_dr.append(_rms_deg(e, c.drift))
     tuned["mekf_reference"] = {"params": mk_p, "mean_rms_deg": float(np.mean(mk_all)),
                                "p95_rms_deg": float(np.percentile(mk_all, 95)),
-                               "drift_rms_deg": float(np.mean(mk_dr))}
+                               "drift_rms_deg": float(np.mean(mk_dr)),
+                               "per_seed_rms_deg": [float(v) for v in mk_all]}
+    if clean.any():
+        tuned["mekf_reference"]["without_sun_outage_mean_rms_deg"] = float(
+            np.mean(np.array(mk_all)[clean]))
 
     # ---- solvers (q_mes itself)
     say("solvers")
