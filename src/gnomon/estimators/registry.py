@@ -15,6 +15,9 @@ _ENTRIES: dict[str, str] = {
     "tilt-cf": "gnomon.estimators.complementary:TiltComplementaryFilter",
     "eskf-r6": "gnomon.estimators.eskf:EskfR6",
     "eskf-r3": "gnomon.estimators.eskf:EskfR3",
+    "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
+    "qcf": "gnomon.estimators.qcf:QuaternionCF",
+    "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
 }
 
 
