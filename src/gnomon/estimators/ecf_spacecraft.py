@@ -123,13 +123,16 @@ def _w_io_o(rec: Recording, orbital_rate: float) -> np.ndarray:
 
 
 def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples: int = 500,
-                 orbital_rate_rad_s: float = 0.0) -> dict:
+                 orbital_rate_rad_s: float = 0.0, history: dict | None = None) -> dict:
     """Arrays the spacecraft filters consume, with the sun substitution applied.
 
     Returns ``dt`` (N,) (``dt[0] = 0``), ``gyro``, ``w_io_o``, ``mag_b``, ``mag_o``,
     ``sec_b``, ``sec_o`` (N, 3) and ``sec_valid``, ``substituted`` (N,) bool. Where
     the sun is invalid the second pair is the substitute (see the module docstring)
-    or unusable (``"none"``, or before M samples have passed).
+    or unusable (``"none"``, or before M samples have passed). ``history``: the
+    ``tail`` of the previous call's result (the last M samples before ``rec``), so a
+    recording processed in pieces gets the same substitutes as in one piece; the
+    result's ``tail`` is the same for the next piece.
     """
     n = len(rec)
     dt = np.zeros(n)
@@ -137,6 +140,7 @@ def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples:
     mag_b = np.ascontiguousarray(rec.mag, float)
     mag_o = np.ascontiguousarray(_field_reference(rec))
     w_io = _w_io_o(rec, orbital_rate_rad_s)
+    gyro = np.ascontiguousarray(rec.gyro, float)
     if rec.sun is None:
         sun = np.full((n, 3), np.nan)
         valid = np.zeros(n, bool)
@@ -153,27 +157,33 @@ def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples:
     sec_valid = valid.copy()
     substituted = np.zeros(n, bool)
     M = int(delay_samples)
-    if sun_substitute != "none" and M < n:
+    # the M samples before this recording (from an earlier piece) and this one, end to end
+    h = 0 if history is None else len(history["dt"])
+    ext = {"dt": dt, "gyro": gyro, "w_io_o": w_io, "mag_b": mag_b, "mag_o": mag_o}
+    if h:
+        ext = {k: np.concatenate([history[k], v]) for k, v in ext.items()}
+    if sun_substitute != "none":
         lost = ~valid
-        lost[:M] = False
+        lost[: max(0, M - h)] = False
         idx = np.flatnonzero(lost)
-        old = idx - M
-        sb = mag_b[old]
-        so = mag_o[old]
-        if sun_substitute == "delayed-gyro":
-            q_b = integrate_rates(dt, rec.gyro)  # q_{b(0) b(k)} from the raw gyro
-            q_o = integrate_rates(dt, w_io)  # q_{o(0) o(k)}
+        old = idx + h - M  # index into the extended arrays
+        sb = ext["mag_b"][old]
+        so = ext["mag_o"][old]
+        if sun_substitute == "delayed-gyro" and idx.size:
+            q_b = integrate_rates(ext["dt"], ext["gyro"])  # q_{b(0) b(k)} from the raw gyro
+            q_o = integrate_rates(ext["dt"], ext["w_io_o"])  # q_{o(0) o(k)}
             # body: v_b(n) = R_{b(n) b(n-M)} v_b(n-M); orbital likewise
-            sb = quat_rotate(quat_mul(quat_conj(q_b[idx]), q_b[old]), sb)
-            so = quat_rotate(quat_mul(quat_conj(q_o[idx]), q_o[old]), so)
+            sb = quat_rotate(quat_mul(quat_conj(q_b[idx + h]), q_b[old]), sb)
+            so = quat_rotate(quat_mul(quat_conj(q_o[idx + h]), q_o[old]), so)
         sec_b[idx] = sb
         sec_o[idx] = so
         sec_valid[idx] = True
         substituted[idx] = True
-    return {"dt": dt, "gyro": np.ascontiguousarray(rec.gyro, float), "w_io_o": w_io,
+    tail = {k: v[max(0, len(v) - M):].copy() for k, v in ext.items()} if M > 0 else None
+    return {"dt": dt, "gyro": gyro, "w_io_o": w_io,
             "mag_b": mag_b, "mag_o": mag_o, "sec_b": np.ascontiguousarray(sec_b),
             "sec_o": np.ascontiguousarray(sec_o), "sec_valid": sec_valid,
-            "substituted": substituted}
+            "substituted": substituted, "tail": tail}
 
 
 def initial_q_ob(pairs: dict, k: int | None = None) -> np.ndarray:
@@ -230,11 +240,14 @@ class ExplicitSpacecraftCF(Estimator):
                "gyro, orbital frame, PI drift estimation, delayed-field sun substitute")
     Params = SpacecraftCFParams
     needs = ("gyro", "mag", "extra.b_o_nT")
+    state_fields = ("q", "bias", "t_last", "tail")
 
     def reset(self) -> None:
         self.q = None
         self.bias = np.zeros(3)
         self.flags = {}
+        self.t_last = None  # s, last sample processed by ``run``
+        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
 
     def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
         """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
@@ -286,7 +299,9 @@ class ExplicitSpacecraftCF(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s)
+        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
+                             history=self.tail)
+        pairs["dt"][0] = self.first_dt(rec)
         if q0 is not None:
             self.q = np.asarray(q0, float) / np.linalg.norm(q0)
         elif self.q is None:
@@ -303,6 +318,7 @@ class ExplicitSpacecraftCF(Estimator):
                   p.k_sun, p.max_dt_s, float(np.sin(np.radians(p.min_angle_deg))), q_out,
                   b_out, flags)
         self.q, self.bias = state_q, state_b
+        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"), "body": "b"},

@@ -84,12 +84,15 @@ class MagGyroMEKF(Estimator):
                "with bias; orbital frame; keeps attitude and drift through sun outages")
     Params = MagGyroMEKFParams
     needs = ("gyro", "mag", "extra.b_o_nT")
+    state_fields = ("q", "bias", "P", "t_last", "tail")
 
     def reset(self) -> None:
         p = self.params
         self.history = []  # past estimates (for the delayed pair's weight)
         self.q = None
         self.bias = np.zeros(3)
+        self.t_last = None  # s, last sample processed by ``run``
+        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
         self.P = np.diag([p.sigma0_att_rad ** 2] * 3 + [p.sigma0_bias_rad_s ** 2] * 3)
         self.flags = {}
 
@@ -165,7 +168,9 @@ class MagGyroMEKF(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s)
+        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
+                             history=self.tail)
+        pairs["dt"][0] = self.first_dt(rec)
         if not p.use_sun:
             pairs["sec_valid"] = np.zeros(len(rec), bool)
         if q0 is not None:
@@ -185,6 +190,7 @@ class MagGyroMEKF(Estimator):
                    p.sigma_sun_rad, p.arw_rad_rt_s, p.bias_rw_rad_s_rt_s, p.max_dt_s, q_out,
                    b_out, flags)
         self.q, self.bias, self.P = state_q, state_b, state_P
+        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"), "body": "b"},

@@ -147,10 +147,13 @@ class QuaternionCF(Estimator):
                "(or QUEST/SVD/...) q_mes from mag + sun, PI on vec(conj(q) ⊗ q_mes)")
     Params = QuaternionCFParams
     needs = ("gyro", "mag", "extra.b_o_nT")
+    state_fields = ("q", "bias", "t_last", "tail")
 
     def reset(self) -> None:
         self.q = None
         self.bias = np.zeros(3)
+        self.t_last = None  # s, last sample processed by ``run``
+        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
         self.flags = {}
 
     def update(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b=None, mag_o=None):
@@ -194,7 +197,9 @@ class QuaternionCF(Estimator):
         """(pairs, q_mes, ok) for ``rec`` with this filter's solver and substitution."""
         p = self.params
         if pairs is None:
-            pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s)
+            pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
+                                 history=self.tail)
+            pairs["dt"][0] = self.first_dt(rec)
         if q0 is None:
             q0 = initial_q_ob(pairs)
         q_mes, ok = measured_quaternions(pairs, p.solver, q0, p.gn_iterations, p.k_mag,
@@ -224,6 +229,7 @@ class QuaternionCF(Estimator):
                   p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.max_dt_s,
                   q_out, b_out, flags)
         self.q, self.bias = state_q, state_b
+        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"), "body": "b"},

@@ -75,11 +75,9 @@ def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: floa
     the orbital frame (1: the preset, about ±15/10/46° roll/pitch/yaw; 0: about
     ±3/2/6°).
     """
-    from gnomon.scenarios import load_scenario
-
     # the submodule, not the package attribute: importing gnomon.scenarios.simulate
     # rebinds gnomon.scenarios.simulate to the module (reported to the world's owner)
-    from gnomon.scenarios import simulate
+    from gnomon.scenarios import load_scenario, simulate
 
     sc = load_scenario("seed000")
     rng = np.random.default_rng(seed)
@@ -205,7 +203,8 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
         rec = simulate_seed(0, 6000.0)
     p1 = vector_pairs(rec, "delayed", 500)
     reps = int(np.ceil(n_samples / len(rec)))
-    p = {k: np.ascontiguousarray(np.concatenate([v] * reps)[:n_samples]) for k, v in p1.items()}
+    p = {k: np.ascontiguousarray(np.concatenate([v] * reps)[:n_samples]) for k, v in p1.items()
+         if k != "tail"}
     p["dt"][0] = 0.0
     n = len(p["dt"])
     q_out, b_out, flags = np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 4), np.int8)
