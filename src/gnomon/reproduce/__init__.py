@@ -1,0 +1,1 @@
+"""Reproductions of the seed papers: ``pNNN.run(out_dir=None, quick=False, progress=False) -> dict``."""
