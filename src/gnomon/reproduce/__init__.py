@@ -1,1 +1,4 @@
-"""Reproductions of the seed papers: ``pNNN.run(out_dir=None, quick=False, progress=False) -> dict``."""
+"""Reproductions of the seed papers.
+
+Each ``pNNN`` module has ``run(out_dir=None, quick=False, progress=False) -> dict``.
+"""

@@ -139,14 +139,23 @@ class HorizonScene:
         return base + np.where(e < 0, tex, 0.3 * tex)
 
 
+_EDGE_TOL = 1e-6  # px: pixel centres on the border survive a round trip through rays
+
+
+def _inside(u, v, W, H):
+    t = _EDGE_TOL
+    return (np.isfinite(u) & np.isfinite(v) & (u >= -t) & (u <= W - 1 + t)
+            & (v >= -t) & (v <= H - 1 + t))
+
+
 def bilinear(image: np.ndarray, u, v) -> np.ndarray:
     """Bilinear interpolation of ``image[row, col]`` at ``(col=u, row=v)``; NaN outside."""
     u = np.asarray(u, dtype=float)
     v = np.asarray(v, dtype=float)
     H, W = image.shape
-    ok = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-    uu = np.where(ok, u, 0.0)
-    vv = np.where(ok, v, 0.0)
+    ok = _inside(u, v, W, H)
+    uu = np.clip(np.where(ok, u, 0.0), 0.0, W - 1.0)
+    vv = np.clip(np.where(ok, v, 0.0), 0.0, H - 1.0)
     out = ndimage.map_coordinates(image, [vv.ravel(), uu.ravel()], order=1, mode="nearest",
                                   prefilter=False).reshape(u.shape).astype(float)
     return np.where(ok, out, np.nan)
@@ -207,9 +216,9 @@ class SimulatedFrame:
         u = np.asarray(u, dtype=float)
         v = np.asarray(v, dtype=float)
         W, H = self.camera.width, self.camera.height
-        ok = np.isfinite(u) & np.isfinite(v) & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-        uu = np.where(ok, u, 0.0)
-        vv = np.where(ok, v, 0.0)
+        ok = _inside(u, v, W, H)
+        uu = np.clip(np.where(ok, u, 0.0), 0.0, W - 1.0)
+        vv = np.clip(np.where(ok, v, 0.0), 0.0, H - 1.0)
         i0 = np.minimum(np.floor(uu).astype(np.int64), W - 2)
         j0 = np.minimum(np.floor(vv).astype(np.int64), H - 2)
         fu = uu - i0

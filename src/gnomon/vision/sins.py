@@ -50,7 +50,7 @@ GYRO_CLASSES = {
 
 @dataclass(frozen=True)
 class HarmonicFlight:
-    """Euler angles ``a_i(t) = mean_i + amp_i sin(2π t / period_i)``, order roll, pitch, yaw (rad)."""
+    """Euler angles ``a_i(t) = mean_i + amp_i sin(2π t / period_i)``; roll, pitch, yaw (rad)."""
 
     mean_rad: tuple[float, float, float] = (0.0, math.radians(2.0), 0.0)
     amp_rad: tuple[float, float, float] = (math.radians(4.0), math.radians(5.0),
