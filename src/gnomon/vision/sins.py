@@ -179,6 +179,7 @@ def run_flight(scene, camera, gyro_class: str = "mems", strip_px: int = 11,
     sm = StripMatcher(ref, truth[0], strip_px=strip_px, **(matcher_kw or {}))
     out = {c: np.full(n_frames, np.nan) for c in conversions}
     ok = np.zeros(n_frames, bool)
+    available = np.zeros(n_frames, bool)  # the match had enough overlap to give a pitch
     conf = np.zeros(n_frames)
     est = np.array(sins_open)  # closed loop: corrected estimate at frame times
     n_acc = {"pitch": 0, "yaw": 0, "roll": 0}
@@ -194,7 +195,7 @@ def run_flight(scene, camera, gyro_class: str = "mems", strip_px: int = 11,
                 p, res = sm.pitch(frame, rpy, conversion=c)
                 out[c][i] = p if np.isfinite(p) else sins_open[i, 1]
                 if c == conversions[0]:
-                    ok[i], conf[i] = res.ok, res.confidence
+                    ok[i], conf[i], available[i] = res.ok, res.confidence, np.isfinite(p)
         else:
             if i > 0:
                 g = gyro[(i - 1) * step:i * step] - b_hat
@@ -206,7 +207,7 @@ def run_flight(scene, camera, gyro_class: str = "mems", strip_px: int = 11,
                 rpy[1] = p
                 n_acc["pitch"] += 1
             out[conversions[0]][i] = p if np.isfinite(p) else rpy[1]
-            ok[i], conf[i] = rp.ok, rp.confidence
+            ok[i], conf[i], available[i] = rp.ok, rp.confidence, np.isfinite(p)
             y, ry = sm.yaw(frame, rpy)
             if ry.ok:
                 rpy[2] = y
@@ -229,6 +230,7 @@ def run_flight(scene, camera, gyro_class: str = "mems", strip_px: int = 11,
         "estimate": est,
         "visual_pitch": out,
         "ok": ok,
+        "available": available,
         "confidence": conf,
         "accepted": n_acc,
         "bias_estimate": b_hat,
