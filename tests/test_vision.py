@@ -194,6 +194,19 @@ def test_strip_matcher_recovers_known_rotation(meadow_small, small_cam):
         StripMatcher(ref, r0, strip_px=0)
 
 
+def test_offcentre_strip_turns_roll_error_into_pitch_bias(meadow_small, small_cam):
+    from gnomon.reproduce.p003 import offcentre_strip_bias
+
+    out = offcentre_strip_bias(meadow_small, small_cam, offsets_px=(0, 60), roll_error_deg=1.0,
+                               n_frames=3, rng=np.random.default_rng(11))
+    assert abs(out[0]["mean_pitch_error_deg"]) < 0.1
+    pred = out[1]["predicted_deg"]  # atan(60 px * 1° / f): about 0.36°
+    assert pred > 0.3
+    # the extra bias of the off-centre strip over the centred one is the predicted x·δφ/f
+    extra = out[1]["mean_pitch_error_deg"] - out[0]["mean_pitch_error_deg"]
+    assert extra == pytest.approx(pred, rel=0.15)
+
+
 # ---------------------------------------------------------------- SINS
 def test_gyro_integration_and_bias_drift():
     fl = HarmonicFlight()

@@ -218,11 +218,14 @@ class StripMatcher:
         (vertical) or width (horizontal)
     ring_radius_frac : radius of the roll ring as a fraction of ``min(cx, cy)``
     gate : keyword arguments for :func:`match_shift` (residual / distinctness limits)
+    column_offset_px : the vertical strip's column relative to the principal point (keep 0:
+        off-centre, a residual roll error ``δφ`` becomes a pitch bias ``≈ x·δφ/f``)
     """
 
     def __init__(self, reference, rpy_ref, strip_px: int = 11, max_shift_deg: float = 10.0,
                  strip_len_frac: float = 0.85, ring_radius_frac: float = 0.55,
-                 roll_max_shift_deg: float = 10.0, gate: dict | None = None):
+                 roll_max_shift_deg: float = 10.0, gate: dict | None = None,
+                 column_offset_px: float = 0.0):
         if int(strip_px) < 1:
             raise InputError(f"strip width must be >= 1 px, got {strip_px}", field="strip_px")
         self.ref = reference
@@ -242,13 +245,14 @@ class StripMatcher:
         # vertical strip, angle grid: g = Ry(alpha) Rz(beta) e_x
         kv = np.arange(-half_v - self.M, half_v + self.M + 1)
         alpha = -kv * self.d_ang
-        beta = np.arctan(jw / f)
+        jv = jw + float(column_offset_px)  # vertical strip's columns relative to cx
+        beta = np.arctan(jv / f)
         ca, sa = np.cos(alpha)[:, None], np.sin(alpha)[:, None]
         cb, sb = np.cos(beta)[None, :], np.sin(beta)[None, :]
         self._g_ang = np.stack(np.broadcast_arrays(ca * cb, sb + 0 * ca, -sa * cb), -1)
         # vertical strip, pixel grid: rays through rows v = cy + k of the centre columns
         self._g_pix = _unit(np.stack(np.broadcast_arrays(
-            np.ones((kv.size, 1)), (jw / f)[None, :], (kv / f)[:, None]), -1))
+            np.ones((kv.size, 1)), (jv / f)[None, :], (kv / f)[:, None]), -1))
         self._kv_core = slice(self.M, self.M + 2 * half_v + 1)
         # horizontal strip: world rays Rz(psi + beta) Ry(theta0 + alpha) e_x
         jh = np.arange(-half_h - self.M, half_h + self.M + 1)
