@@ -154,12 +154,22 @@ def run_flight(scene, camera, gyro_class: str = "mems", strip_px: int = 11,
     true roll and yaw (the per-frame accuracy test). Rejected or impossible matches fall
     back to the SINS pitch in the output. ``gyro_bias_rad_s`` overrides the class's bias
     (e.g. a yaw-only bias to isolate formula (3)).
+
+    Returns a dict: ``t`` (frame times, s), ``truth`` / ``sins_open`` / ``estimate``
+    (``[roll, pitch, yaw]`` per frame, rad; ``estimate`` is the corrected closed-loop
+    attitude, or the open-loop SINS), ``visual_pitch`` (per conversion, rad), ``ok`` (gate
+    passed), ``available`` (the match had enough overlap), ``confidence``, ``accepted``
+    (closed loop: accepted measurements per axis), ``bias_estimate`` (rad/s) and the
+    ``matcher``.
     """
     if gyro_class not in GYRO_CLASSES:
         raise InputError(f"unknown gyro class {gyro_class!r}; known: {sorted(GYRO_CLASSES)}",
                          field="gyro")
     if mode not in ("open_loop", "closed_loop"):
         raise InputError(f"mode must be open_loop or closed_loop, got {mode!r}", field="mode")
+    if derotation not in ("sins", "truth"):
+        raise InputError(f"derotation must be sins or truth, got {derotation!r}",
+                         field="derotation")
     rng = np.random.default_rng(0) if rng is None else rng
     flight = HarmonicFlight() if flight is None else flight
     gc = GYRO_CLASSES[gyro_class]
