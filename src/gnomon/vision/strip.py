@@ -237,7 +237,6 @@ class StripMatcher:
         f = cam.f_px
         self.d_ang = float(np.arctan(1.0 / f))  # one pixel at the principal point
         self.M = int(np.ceil(np.radians(max_shift_deg) / self.d_ang))
-        self.Mr = None
         half_v = int(0.5 * strip_len_frac * cam.height)
         half_h = int(0.5 * strip_len_frac * cam.width)
         jw = np.arange(self.w) - 0.5 * (self.w - 1)
