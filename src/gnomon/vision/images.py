@@ -87,7 +87,7 @@ def load_cube_faces(face_px: int = 1024, prefer_full: bool = True) -> np.ndarray
     """The six faces of ``meadow_cube.jpg``, grayscale, shape ``(6, face_px, face_px)``.
 
     Faces in OpenGL order ``+x, -x, +y (sky), -y (ground), +z, -z``; each is
-    box-filtered down to ``face_px`` (a face never gets upsampled beyond its source).
+    box-filtered down to ``face_px``, never upsampled (the bundled copy has 256-px faces).
     """
     Image = _pil()
     path, _ = find_image("meadow_cube.jpg", prefer_full)
@@ -100,7 +100,7 @@ def load_cube_faces(face_px: int = 1024, prefer_full: bool = True) -> np.ndarray
         faces = []
         for k in range(6):
             f = g.crop((0, k * w, w, (k + 1) * w))
-            if face_px != w:
+            if face_px < w:
                 f = f.resize((face_px, face_px), Image.Resampling.BOX)
             faces.append(np.asarray(f, dtype=np.float32) / 255.0)
     out = np.stack(faces)
