@@ -265,8 +265,13 @@ def test_p003_quick_contract_and_targets(p003_quick):
             "rms_pitch_error_deg", "sins_max_pitch_error_deg", "autonomy_s"}
     for c in r["cases"]:
         assert set(c) >= keys
+    import json
+
+    assert json.loads(json.dumps(r, allow_nan=False))["paper"] == "003"  # plain JSON, no NaN
     for e in r["autonomy_formula"]:
         assert set(e) >= {"strip_px", "gyro", "scene", "predicted_s", "simulated_s"}
+        bz = 3e-3 if e["gyro"] == "mems" else 3e-4
+        assert e["predicted_s"] == pytest.approx(e["strip_px"] * D(60.0) / (bz * 640))
     for m in ("ssd", "ssd_subpixel", "phase_correlation", "ecc"):
         assert set(r["methods"][m]) >= {"rmse_px", "time_us"}
     for f in ("metrics.json", "pitch_sins_visual_truth.png", "pitch_error_cases.png"):
