@@ -12,6 +12,8 @@ from gnomon.errors import InputError
 
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
+    "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
+    "mekf-spacecraft": "gnomon.estimators.ekf_spacecraft:MEKFSpacecraft",
 }
 
 
