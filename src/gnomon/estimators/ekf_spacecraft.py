@@ -80,7 +80,8 @@ def reference_inputs(rec: Recording, orbit_rate_rad_s: float) -> dict:
 
     ``mag_u``, ``sun_u`` (N, 3) measured unit vectors in b (NaN rows of ``sun``
     replaced by zeros, ``sun_valid`` (N,)); ``b_o_u``, ``s_o_u`` (N, 3) reference unit
-    vectors in o from ``extra['b_o_nT']`` and ``extra['s_o']``; ``w_io_o`` (N, 3) rad/s
+    vectors in o from the on-board field model ``extra['b_o_model_nT']`` (else the true
+    ``extra['b_o_nT']``) and ``extra['s_o']``; ``w_io_o`` (N, 3) rad/s
     from ``extra['w_io_o']`` if present, else ``[0, -orbit_rate, 0]``; ``dt`` (N,).
     """
     n = len(rec)
@@ -91,7 +92,8 @@ def reference_inputs(rec: Recording, orbit_rate_rad_s: float) -> dict:
     else:
         sun_valid = np.zeros(n, bool)
         sun_u = np.zeros((n, 3))
-    b_o_u = _unit(rec.extra["b_o_nT"])
+    b_o = rec.extra.get("b_o_model_nT")
+    b_o_u = _unit(rec.extra["b_o_nT"] if b_o is None else b_o)
     s_o_u = _unit(rec.extra["s_o"])
     if "w_io_o" in rec.extra:
         w_io_o = np.asarray(rec.extra["w_io_o"], float)
@@ -125,9 +127,11 @@ def _series(rec: Recording, name: str) -> np.ndarray:
 class EKFSpacecraftParams(Params):
     """Tuning of :class:`EKFSpacecraft` (SI)."""
 
-    inertia_x_kg_m2: float = param(0.30, "kg m^2", "filter's principal moment about x_b")
-    inertia_y_kg_m2: float = param(0.35, "kg m^2", "filter's principal moment about y_b")
-    inertia_z_kg_m2: float = param(0.25, "kg m^2", "filter's principal moment about z_b")
+    inertia_from_recording: bool = param(
+        True, "", "use extra.inertia_model_kg_m2 (the on-board model) when the recording has it")
+    inertia_x_kg_m2: float = param(0.40, "kg m^2", "filter's principal moment about x_b")
+    inertia_y_kg_m2: float = param(0.58, "kg m^2", "filter's principal moment about y_b")
+    inertia_z_kg_m2: float = param(0.55, "kg m^2", "filter's principal moment about z_b")
     sigma_mag: float = param(0.01, "1", "noise of the unit field vector (per component)")
     sigma_sun: float = param(0.005, "1", "noise of the unit sun vector (per component)")
     torque_noise_n_m: float = param(2e-6, "N m", "process noise: unmodelled torque")
@@ -190,10 +194,15 @@ class EKFSpacecraft(Estimator):
 
     def _setup(self, rec: Recording, inertia=None):
         p = self.params
-        J = self.inertia if inertia is None else np.asarray(inertia, float)
+        if inertia is not None:
+            J = np.asarray(inertia, float)
+        elif p.inertia_from_recording and "inertia_model_kg_m2" in rec.extra:
+            J = np.asarray(rec.extra["inertia_model_kg_m2"][0], float)
+        else:
+            J = self.inertia
         inp = reference_inputs(rec, p.orbit_rate_rad_s)
         mag_T = rec.mag_tesla
-        tau = np.ascontiguousarray(np.cross(_series(rec, "m_b"), mag_T))
+        tau = np.ascontiguousarray(np.cross(_series(rec, "m_dipole_b_Am2"), mag_T))
         n_orb = float(np.mean(np.linalg.norm(inp["w_io_o"], axis=1)))
         gg = 3.0 * n_orb**2 if p.gravity_gradient else 0.0
         q0 = _initial_q(rec, inp)
@@ -202,12 +211,12 @@ class EKFSpacecraft(Estimator):
         w0 = rt_v.py_func(q0, inp["w_io_o"][0])  # orbit-fixed rate as the first guess
         z0 = np.concatenate([w0, q0])
         P0 = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
-        Jd = np.diag(J)
+        Jd = np.diag(J).copy()
         Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) + [p.quat_noise_per_rt_s**2] * 4)
         args = (inp["dt"], inp["mag_u"], inp["sun_u"], inp["sun_valid"], inp["b_o_u"],
                 inp["s_o_u"], inp["w_io_o"], np.ascontiguousarray(J),
-                np.ascontiguousarray(np.linalg.inv(J)), _series(rec, "h_b"),
-                _series(rec, "hdot_b"), tau, gg, z0, P0, Q, p.sigma_mag**2, p.sigma_sun**2,
+                np.ascontiguousarray(np.linalg.inv(J)), _series(rec, "h_wheel_b_Nms"),
+                _series(rec, "hdot_wheel_b_Nm"), tau, gg, z0, P0, Q, p.sigma_mag**2, p.sigma_sun**2,
                 bool(p.use_sun), int(p.substeps))
         return args
 
