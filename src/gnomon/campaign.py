@@ -419,7 +419,6 @@ def _prepare(scenario, vary, root_seed, task, task_options):
     fn = _resolve_task(task)
     accepts = getattr(fn, "accepts", None)
     scenario_keys = []
-    rng = np.random.default_rng(0)
     for key, dist in dists.items():
         try:
             sc.get(key)
@@ -428,7 +427,8 @@ def _prepare(scenario, vary, root_seed, task, task_options):
             is_scenario = False
         if is_scenario:
             # check that the values the distribution gives are accepted by the schema
-            values = dist.args if dist.kind in ("choice", "const") else (dist.draw(rng),)
+            # (normal: its mean; uniform: both ends; choice/const: every value)
+            values = (dist.args[:1] if dist.kind == "normal" else dist.args)
             for v in values:
                 try:
                     sc.replace({key: v})
