@@ -239,6 +239,7 @@ def simulate_and_score(scenario, params: dict, seed: int, filters: Sequence[str]
     (NaN when there is no such sample); ``eclipse_fraction`` of the recording.
     """
     from gnomon.estimators import registry
+
     # the function, not ``gnomon.scenarios.simulate``: once the submodule is imported that
     # package attribute is the module (spaceworld issue, reported)
     from gnomon.scenarios.simulate import simulate
