@@ -561,8 +561,8 @@ def run_campaign(scenario, runs: int, out_dir: str | pathlib.Path | None, vary=N
         ran += len(rows)
         failed += sum(r["status"] != "ok" for r in rows)
         if bar is not None:
-            bar.update(len(rows))
             bar.set_postfix(done=ran, failed=failed, refresh=False)
+            bar.update(len(rows))
 
     try:
         if chunks:
@@ -586,15 +586,16 @@ def _run_local(spec, chunks, n_workers, finished):
     import multiprocessing as mp
 
     ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-    with cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
+    pool = cf.ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx)
+    try:
         futs = [pool.submit(_execute_chunk, spec, c) for c in chunks]
-        try:
-            for f in cf.as_completed(futs):
-                finished(f.result())
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+        for f in cf.as_completed(futs):
+            finished(f.result())
+    except BaseException:
+        # Ctrl-C / error: keep what is written, do not wait for the running chunks
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
 
 
 def _run_dask(spec, chunks, workers, scheduler, finished, retries):
