@@ -633,11 +633,18 @@ def _run_dask(spec, chunks, workers, scheduler, finished, retries):
 def campaign_cli(scenario: str, runs: int, out: str | None, vary: Sequence[str] = (),
                  executor: str = "local", scheduler: str | None = None,
                  workers: int | None = None, resume: bool = False, only: int | None = None,
-                 root_seed: int = 0, filters: Sequence[str] | None = None) -> dict:
-    """What ``gnomon campaign`` does; returns a JSON-able summary (also for ``--json``)."""
+                 root_seed: int = 0, filters: Sequence[str] | None = None,
+                 progress: bool = True) -> dict:
+    """What ``gnomon campaign`` does; returns a JSON-able summary (also for ``--json``).
+
+    Summary keys: ``runs``, ``ran`` (this call), ``failed_now``, ``rows`` (in the table),
+    ``failed_total``, ``elapsed_s``, ``runs_per_s``, ``path`` (results.parquet),
+    ``metrics`` ({column: {mean, p95, max}} over the successful rows) and, with ``only``,
+    ``row`` (that run's full row). The progress bar goes to stderr.
+    """
     res = run_campaign(scenario, runs, out, list(vary), root_seed=root_seed, executor=executor,
                        scheduler=scheduler, workers=workers, resume=resume, only=only,
-                       filters=filters, progress=True)
+                       filters=filters, progress=progress)
     df = res.table
     summary = {"runs": int(runs), "ran": res.ran, "failed_now": res.failed,
                "rows": int(len(df)), "failed_total": int((df["status"] != "ok").sum()),

@@ -188,6 +188,52 @@ class EKFSpacecraft(Estimator):
 
     def reset(self) -> None:
         self.z = None
+        self.P = None
+        self._prev = None
+
+    def update(self, dt_s: float, mag_b, b_o, sun_b=None, s_o=None, *, w_io_o=None,
+               h_b=(0.0, 0.0, 0.0), hdot_b=(0.0, 0.0, 0.0), tau_b=(0.0, 0.0, 0.0),
+               inertia=None) -> np.ndarray:
+        """One sample (streaming); returns ``q_ob`` (4,).
+
+        ``mag_b`` (3,) field in b and ``b_o`` (3,) the model field in o (any one unit);
+        ``sun_b``/``s_o`` (3,) sun vectors in b and o, or None (eclipse). ``w_io_o`` (3,)
+        rad/s (default ``[0, -orbit_rate, 0]``), wheel momentum ``h_b`` N m s, its rate
+        ``hdot_b`` N m and the known external torque ``tau_b`` N m (e.g. magnetorquer
+        ``m × B``) at this sample: they drive the prediction to the next sample, as in
+        ``run``. The first call initialises (TRIAD) and ``dt_s`` is ignored.
+        """
+        from gnomon.kernels.ekf_spacecraft import ekf_step, rt_v
+
+        p = self.params
+        mag_u, bo_u = _unit(mag_b), _unit(b_o)
+        sun_ok = sun_b is not None and s_o is not None and p.use_sun
+        sun_u = _unit(sun_b) if sun_ok else np.zeros(3)
+        so_u = _unit(s_o) if sun_ok else np.zeros(3)
+        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o is None
+                else np.asarray(w_io_o, float))
+        inputs = (w_io, np.asarray(h_b, float), np.asarray(hdot_b, float),
+                  np.asarray(tau_b, float))
+        if self.z is None:
+            J = self.inertia if inertia is None else np.asarray(inertia, float)
+            q0 = (triad_q_ob(sun_u, mag_u, so_u, bo_u) if sun_ok else
+                  triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0]))
+            self.z = np.concatenate([rt_v.py_func(q0, w_io), q0])
+            self.P = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
+            Jd = np.diag(J).copy()
+            self._Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) +
+                              [p.quat_noise_per_rt_s**2] * 4)
+            self._J = (np.ascontiguousarray(J), np.ascontiguousarray(np.linalg.inv(J)))
+            self._gg = 3.0 * float(np.linalg.norm(w_io)) ** 2 if p.gravity_gradient else 0.0
+        else:
+            wp, hp, hdp, tp = self._prev
+            innov = np.empty(2)
+            self.z, self.P = ekf_step(self.z, self.P, float(dt_s), mag_u, sun_u, sun_ok, bo_u,
+                                      so_u, wp, self._J[0], self._J[1], hp, hdp, tp, self._gg,
+                                      self._Q, p.sigma_mag**2, p.sigma_sun**2,
+                                      int(p.substeps), innov)
+        self._prev = inputs
+        return self.z[3:7].copy()
 
     @property
     def inertia(self) -> np.ndarray:
@@ -253,6 +299,40 @@ class MEKFSpacecraft(Estimator):
     def reset(self) -> None:
         self.q = None
         self.bias = np.zeros(3)
+        self.P = None
+        self._prev = None
+
+    def update(self, dt_s: float, gyro_rad_s, mag_b, b_o, sun_b=None, s_o=None, *,
+               w_io_o=None) -> np.ndarray:
+        """One sample (streaming); returns ``q_ob`` (4,).
+
+        ``gyro_rad_s`` (3,) ``w_ib_b`` of this sample (it propagates to the next one, as in
+        ``run``); vectors as in :meth:`EKFSpacecraft.update`. The first call initialises
+        (TRIAD) and ``dt_s`` is ignored.
+        """
+        from gnomon.kernels.ekf_spacecraft import mekf_step
+
+        p = self.params
+        mag_u, bo_u = _unit(mag_b), _unit(b_o)
+        sun_ok = sun_b is not None and s_o is not None and p.use_sun
+        sun_u = _unit(sun_b) if sun_ok else np.zeros(3)
+        so_u = _unit(s_o) if sun_ok else np.zeros(3)
+        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o is None
+                else np.asarray(w_io_o, float))
+        if self.q is None:
+            self.q = (triad_q_ob(sun_u, mag_u, so_u, bo_u) if sun_ok else
+                      triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0]))
+            self.bias = np.zeros(3)
+            self.P = np.diag([p.p0_att_rad**2] * 3 + [p.p0_bias_rad_s**2] * 3)
+        else:
+            g_prev, w_prev = self._prev
+            innov = np.empty(2)
+            self.q, self.bias, self.P = mekf_step(
+                self.q, self.bias, self.P, float(dt_s), g_prev, mag_u, sun_u, sun_ok, bo_u,
+                so_u, w_prev, p.gyro_arw_rad_rt_s**2, p.gyro_rrw_rad_s_rt_s**2,
+                p.sigma_mag**2, p.sigma_sun**2, innov)
+        self._prev = (np.asarray(gyro_rad_s, float), w_io)
+        return self.q.copy()
 
     def _setup(self, rec: Recording):
         p = self.params

@@ -173,9 +173,56 @@ def ekf_jacobian(z, J, Jinv, h, w_io_o, gg):
 
 
 @njit(cache=True)
+def ekf_step(z, P, Ts, mag_u, sun_u, sun_ok, b_o_u, s_o_u, w_io_o, J, Jinv, h, hdot, tau, gg,
+             Q, r_mag, r_sun, substeps, innov):
+    """One EKF sample: predict over ``Ts`` with the inputs of the previous sample (``w_io_o``,
+    ``h``, ``hdot``, ``tau``), then update with the vectors of this sample. Returns the new
+    ``(z, P)``; ``innov`` (2,) receives the innovation norms (NaN when not used)."""
+    # --- state prediction: RK4 of f with the inputs held over the step
+    hs = Ts / substeps
+    for _ in range(substeps):
+        k1 = ekf_f(z, J, Jinv, h, hdot, tau, w_io_o, gg)
+        k2 = ekf_f(z + 0.5 * hs * k1, J, Jinv, h, hdot, tau, w_io_o, gg)
+        k3 = ekf_f(z + 0.5 * hs * k2, J, Jinv, h, hdot, tau, w_io_o, gg)
+        k4 = ekf_f(z + hs * k3, J, Jinv, h, hdot, tau, w_io_o, gg)
+        z = z + hs / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    z[3:7] = normalize(z[3:7])
+    # --- covariance prediction with Phi = I + F(z_{n+1|n}) Ts
+    eye7 = np.eye(7)
+    Phi = eye7 + ekf_jacobian(z, J, Jinv, h, w_io_o, gg) * Ts
+    P = Phi @ P @ Phi.T + Q * Ts
+    # --- update with the vectors available now
+    q = z[3:7]
+    m = 6 if sun_ok else 3
+    H = np.zeros((m, 7))
+    y = np.empty(m)
+    R = np.zeros((m, m))
+    H[0:3, 3:7] = d_rt_v(q, b_o_u)
+    y[0:3] = mag_u - rt_v(q, b_o_u)
+    for i in range(3):
+        R[i, i] = r_mag
+    innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
+    innov[1] = np.nan
+    if m == 6:
+        H[3:6, 3:7] = d_rt_v(q, s_o_u)
+        y[3:6] = sun_u - rt_v(q, s_o_u)
+        for i in range(3, 6):
+            R[i, i] = r_sun
+        innov[1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    z = z + K @ y
+    IKH = eye7 - K @ H
+    P = IKH @ P @ IKH.T + K @ R @ K.T
+    P = 0.5 * (P + P.T)
+    z[3:7] = normalize(z[3:7])
+    return z, P
+
+
+@njit(cache=True)
 def ekf_batch(dt, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, J, Jinv, h, hdot, tau, gg,
               z0, P0, Q, r_mag, r_sun, use_sun, substeps):
-    """The paper's EKF over N samples.
+    """The paper's EKF over N samples (:func:`ekf_step` per sample).
 
     Inputs (N rows): ``dt`` (N,) s (``dt[k] = t[k] - t[k-1]``, ``dt[0]`` unused); measured
     unit vectors ``mag_u``, ``sun_u`` in b; ``sun_valid`` (N,) bool; reference unit vectors
@@ -195,49 +242,10 @@ def ekf_batch(dt, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, J, Jinv, h, hdo
     zs[0] = z
     for i in range(7):
         pd[0, i] = P[i, i]
-    eye7 = np.eye(7)
     for k in range(1, n):
-        Ts = dt[k]
-        hk = h[k - 1]
-        hdk = hdot[k - 1]
-        tk = tau[k - 1]
-        wk = w_io_o[k - 1]
-        # --- state prediction: RK4 of f with the inputs held over the step
-        hs = Ts / substeps
-        for _ in range(substeps):
-            k1 = ekf_f(z, J, Jinv, hk, hdk, tk, wk, gg)
-            k2 = ekf_f(z + 0.5 * hs * k1, J, Jinv, hk, hdk, tk, wk, gg)
-            k3 = ekf_f(z + 0.5 * hs * k2, J, Jinv, hk, hdk, tk, wk, gg)
-            k4 = ekf_f(z + hs * k3, J, Jinv, hk, hdk, tk, wk, gg)
-            z = z + hs / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        z[3:7] = normalize(z[3:7])
-        # --- covariance prediction with Phi = I + F(z_{n+1|n}) Ts
-        Phi = eye7 + ekf_jacobian(z, J, Jinv, hk, wk, gg) * Ts
-        P = Phi @ P @ Phi.T + Q * Ts
-        # --- update with the vectors available at k
-        q = z[3:7]
-        m = 6 if (use_sun and sun_valid[k]) else 3
-        H = np.zeros((m, 7))
-        y = np.empty(m)
-        R = np.zeros((m, m))
-        H[0:3, 3:7] = d_rt_v(q, b_o_u[k])
-        y[0:3] = mag_u[k] - rt_v(q, b_o_u[k])
-        for i in range(3):
-            R[i, i] = r_mag
-        innov[k, 0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
-        if m == 6:
-            H[3:6, 3:7] = d_rt_v(q, s_o_u[k])
-            y[3:6] = sun_u[k] - rt_v(q, s_o_u[k])
-            for i in range(3, 6):
-                R[i, i] = r_sun
-            innov[k, 1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
-        S = H @ P @ H.T + R
-        K = np.linalg.solve(S, H @ P).T
-        z = z + K @ y
-        IKH = eye7 - K @ H
-        P = IKH @ P @ IKH.T + K @ R @ K.T
-        P = 0.5 * (P + P.T)
-        z[3:7] = normalize(z[3:7])
+        z, P = ekf_step(z, P, dt[k], mag_u[k], sun_u[k], use_sun and sun_valid[k], b_o_u[k],
+                        s_o_u[k], w_io_o[k - 1], J, Jinv, h[k - 1], hdot[k - 1], tau[k - 1],
+                        gg, Q, r_mag, r_sun, substeps, innov[k])
         zs[k] = z
         for i in range(7):
             pd[k, i] = P[i, i]
@@ -260,9 +268,64 @@ def quat_exp_half(v):
 
 
 @njit(cache=True)
+def mekf_step(q, b, P, Ts, gyro_prev, mag_u, sun_u, sun_ok, b_o_u, s_o_u, w_io_o_prev,
+              arw_var, rrw_var, r_mag, r_sun, innov):
+    """One MEKF sample: propagate with the previous gyro sample over ``Ts``, update with the
+    vectors of this sample. Returns ``(q, b, P)``; ``innov`` (2,) gets the innovation norms."""
+    w = gyro_prev - b
+    w_bo = w - rt_v(q, w_io_o_prev)
+    q = normalize(qmul(q, quat_exp_half(w_bo * Ts)))
+    Phi = np.eye(6)
+    dq = quat_exp_half(-w * Ts)
+    # exp(-[w×]Ts) = R(dq) as a DCM (the transpose of the body's step rotation)
+    Rw = np.empty((3, 3))
+    for j in range(3):
+        e = np.zeros(3)
+        e[j] = 1.0
+        Rw[:, j] = rt_v(dq, e)
+    Phi[0:3, 0:3] = Rw.T
+    for i in range(3):
+        Phi[i, 3 + i] = -Ts
+    P = Phi @ P @ Phi.T
+    for i in range(3):
+        P[i, i] += arw_var * Ts
+        P[3 + i, 3 + i] += rrw_var * Ts
+    m = 6 if sun_ok else 3
+    H = np.zeros((m, 6))
+    y = np.empty(m)
+    R = np.zeros((m, m))
+    yh = rt_v(q, b_o_u)
+    H[0:3, 0:3] = skew(yh)
+    y[0:3] = mag_u - yh
+    for i in range(3):
+        R[i, i] = r_mag
+    innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
+    innov[1] = np.nan
+    if m == 6:
+        ys = rt_v(q, s_o_u)
+        H[3:6, 0:3] = skew(ys)
+        y[3:6] = sun_u - ys
+        for i in range(3, 6):
+            R[i, i] = r_sun
+        innov[1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    dx = K @ y
+    IKH = np.eye(6) - K @ H
+    P = IKH @ P @ IKH.T + K @ R @ K.T
+    P = 0.5 * (P + P.T)
+    corr = np.empty(4)
+    corr[0] = 1.0
+    corr[1:4] = 0.5 * dx[0:3]
+    q = normalize(qmul(q, corr))
+    b = b + dx[3:6]
+    return q, b, P
+
+
+@njit(cache=True)
 def mekf_batch(dt, gyro, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, q0, b0, P0,
                arw_var, rrw_var, r_mag, r_sun, use_sun):
-    """Multiplicative EKF with gyro bias over N samples.
+    """Multiplicative EKF with gyro bias over N samples (:func:`mekf_step` per sample).
 
     Error state ``[δθ (body), δb]`` with ``q_ob,true = q̂_ob ⊗ [1, δθ/2]``; propagation
     ``q ← q ⊗ exp((ω - b - R_ob^T w_io_o) Ts)`` with the gyro sample of the step's start;
@@ -283,55 +346,10 @@ def mekf_batch(dt, gyro, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, q0, b0, 
     bs[0] = b
     for i in range(6):
         pd[0, i] = P[i, i]
-    eye6 = np.eye(6)
     for k in range(1, n):
-        Ts = dt[k]
-        w = gyro[k - 1] - b
-        w_bo = w - rt_v(q, w_io_o[k - 1])
-        q = normalize(qmul(q, quat_exp_half(w_bo * Ts)))
-        Phi = np.eye(6)
-        dq = quat_exp_half(-w * Ts)
-        # exp(-[w×]Ts) = R(dq) as a DCM (the transpose of the body's step rotation)
-        Rw = np.empty((3, 3))
-        for j in range(3):
-            e = np.zeros(3)
-            e[j] = 1.0
-            Rw[:, j] = rt_v(dq, e)
-        Phi[0:3, 0:3] = Rw.T
-        for i in range(3):
-            Phi[i, 3 + i] = -Ts
-        P = Phi @ P @ Phi.T
-        for i in range(3):
-            P[i, i] += arw_var * Ts
-            P[3 + i, 3 + i] += rrw_var * Ts
-        m = 6 if (use_sun and sun_valid[k]) else 3
-        H = np.zeros((m, 6))
-        y = np.empty(m)
-        R = np.zeros((m, m))
-        yh = rt_v(q, b_o_u[k])
-        H[0:3, 0:3] = skew(yh)
-        y[0:3] = mag_u[k] - yh
-        for i in range(3):
-            R[i, i] = r_mag
-        innov[k, 0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
-        if m == 6:
-            ys = rt_v(q, s_o_u[k])
-            H[3:6, 0:3] = skew(ys)
-            y[3:6] = sun_u[k] - ys
-            for i in range(3, 6):
-                R[i, i] = r_sun
-            innov[k, 1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
-        S = H @ P @ H.T + R
-        K = np.linalg.solve(S, H @ P).T
-        dx = K @ y
-        IKH = eye6 - K @ H
-        P = IKH @ P @ IKH.T + K @ R @ K.T
-        P = 0.5 * (P + P.T)
-        corr = np.empty(4)
-        corr[0] = 1.0
-        corr[1:4] = 0.5 * dx[0:3]
-        q = normalize(qmul(q, corr))
-        b = b + dx[3:6]
+        q, b, P = mekf_step(q, b, P, dt[k], gyro[k - 1], mag_u[k], sun_u[k],
+                            use_sun and sun_valid[k], b_o_u[k], s_o_u[k], w_io_o[k - 1],
+                            arw_var, rrw_var, r_mag, r_sun, innov[k])
         qs[k] = q
         bs[k] = b
         for i in range(6):
