@@ -38,6 +38,7 @@ __all__ = [
     "orbital_frame_dcm",
     "quat_io",
     "w_io_o",
+    "w_io_o_of_orbit",
     "precession_j2000_to_mod",
     "TT_MINUS_UTC_S",
 ]
@@ -128,9 +129,27 @@ def w_io_o(r_i, v_i) -> np.ndarray:
     return out
 
 
+def w_io_o_of_orbit(propagate, t_s, h_s: float = 0.05) -> np.ndarray:
+    """Exact rate of ``o`` relative to ``i`` in ``o`` (rad/s), (N, 3), for any orbit model.
+
+    ``propagate(t) -> (r_i, v_i)``. Central difference of ``q_io`` over ``±h_s``
+    (error ~ (h ω)² ω, far below 1e-12 rad/s): includes the small out-of-plane rate
+    (node regression, perturbations) that the Keplerian :func:`w_io_o` leaves out.
+    """
+    from gnomon.rotation import quat_conj, quat_mul, rotvec_from_quat
+
+    t = np.asarray(t_s, float)
+    qm = quat_io(*propagate(t - h_s))
+    qp = quat_io(*propagate(t + h_s))
+    return rotvec_from_quat(quat_mul(quat_conj(qm), qp)) / (2.0 * h_s)
+
+
 def precession_j2000_to_mod(jd_tt) -> np.ndarray:
-    """IAU 1976 precession matrix (Lieske): ``r_mod = P @ r_j2000`` at TT Julian date ``jd_tt``."""
-    t = (float(jd_tt) - _J2000_JD) / 36525.0
+    """IAU 1976 precession matrix (Lieske): ``r_mod = P @ r_j2000`` at TT Julian date(s) ``jd_tt``.
+
+    Shape ``(..., 3, 3)`` for ``jd_tt`` of shape ``(...)``.
+    """
+    t = (np.asarray(jd_tt, float) - _J2000_JD) / 36525.0
     asec = np.pi / 180.0 / 3600.0
     zeta = (2306.2181 * t + 0.30188 * t**2 + 0.017998 * t**3) * asec
     z = (2306.2181 * t + 1.09468 * t**2 + 0.018203 * t**3) * asec
@@ -138,10 +157,14 @@ def precession_j2000_to_mod(jd_tt) -> np.ndarray:
 
     def rz(a):
         c, s = np.cos(a), np.sin(a)
-        return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        zero, one = np.zeros_like(a), np.ones_like(a)
+        return np.stack([np.stack([c, s, zero], -1), np.stack([-s, c, zero], -1),
+                         np.stack([zero, zero, one], -1)], -2)
 
     def ry(a):
         c, s = np.cos(a), np.sin(a)
-        return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+        zero, one = np.zeros_like(a), np.ones_like(a)
+        return np.stack([np.stack([c, zero, -s], -1), np.stack([zero, one, zero], -1),
+                         np.stack([s, zero, c], -1)], -2)
 
     return rz(-z) @ ry(theta) @ rz(-zeta)

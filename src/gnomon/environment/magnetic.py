@@ -15,7 +15,8 @@ Field-model errors (seed 001: "uncertainty of the Earth magnetic field model",
 
 * ``scale``: ``B' = (1 + L) B`` (constant relative magnitude error L = level %).
 * ``tilt``: ``B'`` is ``B`` rotated by the fixed angle ``atan(L)`` about a fixed
-  random axis in ECEF (a direction error with ``|B' - B| ≈ L |B|``).
+  random axis in ECEF (magnitude kept; direction error ``atan(L) sin(∠(B, axis))``,
+  at most ``atan(L)``, so ``|B' - B| <= L |B|``).
 * ``component``: ``B'_k = (1 + L z_k) B_k`` in ECEF, ``z_k ~ N(0, 1)`` drawn once.
 * ``gauss``: every Gauss coefficient ``g_nm, h_nm`` multiplied by ``(1 + L z_nm)``,
   ``z_nm ~ N(0, 1)`` drawn once.

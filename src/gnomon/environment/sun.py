@@ -69,8 +69,8 @@ def sun_direction_j2000(epoch, t_s) -> np.ndarray:
     """Unit Earth-to-Sun direction in J2000 (mean equator and equinox of J2000.0)."""
     n = _n_days_tt(epoch, t_s)
     u = _almanac(n)[0]
-    P = precession_j2000_to_mod(2451545.0 + float(np.mean(n)))
-    return u @ P          # P.T @ u for each row
+    P = precession_j2000_to_mod(2451545.0 + n)
+    return np.einsum("...ji,...j->...i", P, u)          # P^T @ u
 
 
 def illumination_fraction(r_sat_m, r_sun_m, r_earth_m: float = R_EARTH_SHADOW_M) -> np.ndarray:

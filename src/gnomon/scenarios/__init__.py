@@ -63,6 +63,11 @@ class Scenario:
     def to_dict(self) -> dict:
         return copy.deepcopy(self.config)
 
+    def to_yaml(self) -> str:
+        """The full scenario (every key, defaults filled in) as YAML text that
+        :func:`load_scenario` reads back to the same scenario (save it beside results)."""
+        return yaml.safe_dump(self.config, sort_keys=False, default_flow_style=None)
+
     def flat(self) -> dict:
         """``{dotted key: value}`` of every setting (for saving beside results)."""
         return flatten(self.config)

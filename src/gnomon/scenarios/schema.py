@@ -10,12 +10,15 @@ error is one ``InputError`` naming the key, raised before any simulation.
 from __future__ import annotations
 
 import copy
+import datetime
 import math
+import numbers
 from typing import Any
 
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.frames import parse_epoch
 
 __all__ = ["SCHEMA", "defaults", "validate", "flatten", "set_dotted", "get_dotted"]
 
@@ -50,27 +53,37 @@ class Leaf:
                     v = float(v)
                 except ValueError:
                     raise bad(f"expected a number, got {v!r}", field=key) from None
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
                 raise bad(f"expected a number, got {v!r}", field=key)
             v = float(v)
         elif k == "int":
-            if isinstance(v, bool) or not isinstance(v, int):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
                 raise bad(f"expected an integer, got {v!r}", field=key)
+            v = int(v)
         elif k == "bool":
             if not isinstance(v, bool):
                 raise bad(f"expected true or false, got {v!r}", field=key)
+        elif k == "epoch":                  # YAML turns an unquoted ISO time into a datetime
+            if not isinstance(v, str | datetime.date):
+                raise bad(f"expected an ISO-8601 UTC time, got {v!r}", field=key)
+            try:
+                return parse_epoch(v).isoformat().replace("+00:00", "Z")
+            except InputError as err:
+                raise bad(err.message, field=key) from None
         elif k == "str":
             if not isinstance(v, str):
                 raise bad(f"expected a string, got {v!r}", field=key)
         elif k == "enum":
             if v not in self.choices:
                 raise bad(f"expected one of {list(self.choices)}, got {v!r}", field=key)
-        elif k == "vec3":
+        elif k == "vec3":                   # 3 numbers, or one number for all three axes
             a = np.asarray(v, dtype=object)
-            if a.shape != (3,) or not all(isinstance(x, int | float) and not isinstance(x, bool)
+            if a.shape == ():
+                a = np.array([v, v, v], dtype=object)
+            if a.shape != (3,) or not all(isinstance(x, numbers.Real) and not isinstance(x, bool)
                                           and math.isfinite(x) for x in a):
-                raise bad(f"expected 3 numbers, got {v!r}", field=key)
-            return [float(x) for x in v]
+                raise bad(f"expected 3 numbers (or one for all axes), got {v!r}", field=key)
+            return [float(x) for x in a]
         elif k == "inertia":
             from gnomon.dynamics import check_inertia
 
@@ -90,7 +103,7 @@ L = Leaf
 SCHEMA: dict = {
     "name": L("str", "", doc="scenario name"),
     "description": L("str", "", doc="free text"),
-    "epoch": L("str", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
+    "epoch": L("epoch", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
     "duration_s": L("float", 5900.0, "s", "length of the run", min=0, min_open=True),
     "step_s": L("float", 1.0, "s", "sampling = integration step", min=0, min_open=True),
     "seed": L("int", 0, doc="root seed (numpy SeedSequence) of every random draw", min=0),
@@ -152,7 +165,7 @@ SCHEMA: dict = {
         "mode": L("enum", "magnetic_pd",
                   choices=("none", "bdot", "magnetic_pd", "bdot_then_pd", "wheel_pd"),
                   doc="attitude control law (gnomon.dynamics)"),
-        "k_bdot": L("float", 1.0e4, "A m^2 s/T", "B-dot gain", min=0),
+        "k_bdot": L("float", 1.0e6, "A m^2 s/T", "B-dot gain", min=0),
         "kp_Nm": L("float", 5e-6, "N m", "pointing gain", min=0),
         "kd_Nms": L("float", 2.5e-3, "N m s", "rate damping gain", min=0),
         "switch_rate_deg_s": L("float", 0.2, "deg/s", "B-dot -> pointing hand-over", min=0),
@@ -256,14 +269,12 @@ def _merge(user: dict, schema: dict, out: dict, prefix: str) -> None:
 def validate(user: dict) -> dict:
     """Merge ``user`` over the defaults and validate it; returns the full nested dict."""
     from gnomon.environment.orbit import MIN_ALTITUDE_M, R_EARTH, TLEOrbit
-    from gnomon.frames import parse_epoch
 
     cfg = defaults()
     _merge(user or {}, SCHEMA, cfg, "")
     # the defaults themselves are checked too (inertia as a full matrix, etc.)
     for key, value in flatten(cfg).items():
         set_dotted(cfg, key, _leaf(key).check(key, value))
-    parse_epoch(cfg["epoch"])
     n = cfg["duration_s"] / cfg["step_s"]
     if abs(n - round(n)) > 1e-9 * max(1.0, n):
         raise InputError(f"step {cfg['step_s']:g} s does not divide the duration "
@@ -284,6 +295,13 @@ def validate(user: dict) -> dict:
         if not o["tle_line1"] or not o["tle_line2"]:
             raise InputError("kind 'tle' needs tle_line1 and tle_line2", field="orbit.tle_line1")
         TLEOrbit(o["tle_line1"], o["tle_line2"])
+    inc = o["inclination_deg"]
+    if not isinstance(inc, str) and not 0.0 <= inc <= 180.0:
+        raise InputError(f"must be in [0, 180] deg, got {inc:g}", field="orbit.inclination_deg")
+    if np.linalg.norm(cfg["sensors"]["sun_sensor"]["boresight_b"]) == 0.0:
+        raise InputError("must be a non-zero vector", field="sensors.sun_sensor.boresight_b")
+    if cfg["sensors"]["sun_sensor"]["min_illumination"] > 1.0:
+        raise InputError("must be in [0, 1]", field="sensors.sun_sensor.min_illumination")
     g = cfg["sensors"]["gyro"]
     if g["step_time_orbits"] is not None and g["step_time_s"] is not None:
         raise InputError("give step_time_orbits or step_time_s, not both",

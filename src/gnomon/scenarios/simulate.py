@@ -34,7 +34,7 @@ from gnomon.environment.orbit import (
     sun_synchronous_inclination,
 )
 from gnomon.environment.sun import illumination_fraction, sun_position_i
-from gnomon.frames import orbital_frame_dcm, parse_epoch, w_io_o
+from gnomon.frames import orbital_frame_dcm, parse_epoch, w_io_o_of_orbit
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_dcm, quat_from_euler, quat_mul, quat_rotate
 from gnomon.sensors import accelerometer_model, gyro_model, magnetometer_model, sun_sensor_model
@@ -90,7 +90,7 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
 
     R_io = orbital_frame_dcm(r_i, v_i)
     q_io = quat_from_dcm(R_io)
-    wio = w_io_o(r_i, v_i)
+    wio = w_io_o_of_orbit(orbit.propagate, t)
 
     sc = cfg["spacecraft"]
     J = np.asarray(sc["inertia_kg_m2"], float)
