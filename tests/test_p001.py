@@ -19,18 +19,21 @@ def test_contract_and_targets(tmp_path):
             assert set(m) == {"level_pct", "mean_peak_error_deg", "rms_deg"}
     assert set(res["eclipse"]["mekf"]) >= {"sunlit_rms_deg", "eclipse_rms_deg",
                                            "eclipse_max_deg", "eclipse_max_worst_deg"}
-    assert res["runs"] == 2 * 16
+    assert res["runs"] == 2 * 17
     # paper: better than 1 deg in the ideal case, mean errors 0-0.5 deg
     assert res["ideal"]["rms_deg"] < 0.5
     # inertia hurts least; a magnitude-only field error does nothing to unit-vector filters
     s10 = {k: v["10"]["mean_peak_error_deg"] for k, v in res["sensitivity"].items()}
     assert s10["inertia"] < min(s10["field_model"], s10["sun_sensor"])
     fm = res["error_models"]["field_model"]
-    assert fm["magnitude"]["rms_deg"] < 2 * res["ideal"]["rms_deg"]
+    assert fm["magnitude"]["rms_deg"] < 1.5 * res["ideal_noisy"]["rms_deg"]
     assert fm["direction"]["mean_peak_error_deg"] > 5.0           # atan(0.1) = 5.7 deg
-    # 10 % is worse than 2 % for every source's default model
-    for v in res["sensitivity"].values():
-        assert v["10"]["rms_deg"] > v["2"]["rms_deg"]
+    # 10 % is worse than 2 % for the field model and the sun sensor (the inertia error is
+    # lost in the noise for this wheel-held, nearly orbit-fixed spacecraft)
+    for src in ("field_model", "sun_sensor"):
+        v = res["sensitivity"][src]
+        assert v["10"]["rms_deg"] > 2 * v["2"]["rms_deg"]
+    assert res["sensitivity"]["inertia"]["10"]["rms_deg"] < 1.5 * res["ideal_noisy"]["rms_deg"]
     e = res["eclipse"]
     assert e["ekf"]["eclipse_max_deg"] > 5 * e["ekf"]["sunlit_rms_deg"]
     assert e["mekf"]["eclipse_max_deg"] < 2.0 and e["mekf"]["eclipse_max_worst_deg"] < 3.0

@@ -41,7 +41,7 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.recording import Recording
-from gnomon.rotation import quat_from_dcm
+from gnomon.rotation import quat_conj, quat_from_dcm, quat_rotate
 
 __all__ = ["EKFSpacecraft", "MEKFSpacecraft", "EKFSpacecraftParams", "MEKFSpacecraftParams",
            "triad_q_ob", "reference_inputs"]
@@ -203,7 +203,7 @@ class EKFSpacecraft(Estimator):
         ``m × B``) at this sample: they drive the prediction to the next sample, as in
         ``run``. The first call initialises (TRIAD) and ``dt_s`` is ignored.
         """
-        from gnomon.kernels.ekf_spacecraft import ekf_step, rt_v
+        from gnomon.kernels.ekf_spacecraft import ekf_step
 
         p = self.params
         mag_u, bo_u = _unit(mag_b), _unit(b_o)
@@ -218,7 +218,7 @@ class EKFSpacecraft(Estimator):
             J = self.inertia if inertia is None else np.asarray(inertia, float)
             q0 = (triad_q_ob(sun_u, mag_u, so_u, bo_u) if sun_ok else
                   triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0]))
-            self.z = np.concatenate([rt_v.py_func(q0, w_io), q0])
+            self.z = np.concatenate([quat_rotate(quat_conj(q0), w_io), q0])
             self.P = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
             Jd = np.diag(J).copy()
             self._Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) +
@@ -254,9 +254,7 @@ class EKFSpacecraft(Estimator):
         n_orb = float(np.mean(np.linalg.norm(inp["w_io_o"], axis=1)))
         gg = 3.0 * n_orb**2 if p.gravity_gradient else 0.0
         q0 = _initial_q(rec, inp)
-        from gnomon.kernels.ekf_spacecraft import rt_v
-
-        w0 = rt_v.py_func(q0, inp["w_io_o"][0])  # orbit-fixed rate as the first guess
+        w0 = quat_rotate(quat_conj(q0), inp["w_io_o"][0])  # orbit-fixed rate: first guess
         z0 = np.concatenate([w0, q0])
         P0 = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
         Jd = np.diag(J).copy()
@@ -275,7 +273,7 @@ class EKFSpacecraft(Estimator):
 
         self.check_inputs(rec)
         args = self._setup(rec, inertia)
-        fn = ekf_batch if compiled else ekf_batch.py_func
+        fn = ekf_batch if compiled else getattr(ekf_batch, "py_func", ekf_batch)
         z, pd, innov = fn(*args)
         self.z = z[-1].copy()
         return Estimate(
@@ -349,7 +347,7 @@ class MEKFSpacecraft(Estimator):
         from gnomon.kernels.ekf_spacecraft import mekf_batch
 
         self.check_inputs(rec)
-        fn = mekf_batch if compiled else mekf_batch.py_func
+        fn = mekf_batch if compiled else getattr(mekf_batch, "py_func", mekf_batch)
         q, b, pd, innov = fn(*self._setup(rec))
         self.q, self.bias = q[-1].copy(), b[-1].copy()
         return Estimate(

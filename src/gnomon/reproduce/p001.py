@@ -9,9 +9,12 @@ gyro-less); remedy: :class:`~gnomon.estimators.ekf_spacecraft.MEKFSpacecraft`.
 Experiments, each a campaign (:func:`gnomon.campaign.run_campaign`) of ``seeds`` runs
 with the task :func:`case_task`:
 
-1. ideal: exact models, noise-free sensors, no eclipse (``environment.shadow: none``).
+1. ideal: exact models, noise-free sensors, no eclipse (``environment.shadow: none``);
+   ``ideal_noisy``: the same with the scenario's sensor noise (magnetometer 300 nT, sun
+   sensor 0.2 deg) — the baseline of the sensitivity runs.
 2. sensitivity: one source at a time (inertia, field model, sun sensor; each source's
-   default model, :mod:`gnomon.uncertainty`) at 2 % and 10 %, otherwise ideal.
+   default model, :mod:`gnomon.uncertainty`) at 2 % and 10 %, with the sensor noise and
+   without eclipse.
 3. error models: every model of every source at 10 %.
 4. eclipse: the scenario as is (sensor noise, eclipse), EKF and MEKF; and with a 10 %
    field-model error (default model).
@@ -39,6 +42,7 @@ SETTLE_S = 300.0
 _TASK_KEYS = ("uncertainty.source", "uncertainty.model", "uncertainty.level_pct")
 _IDEAL = {"sensors.magnetometer.noise_nT": "0", "sensors.sun_sensor.noise_deg": "0",
           "environment.shadow": "none"}
+_SUNLIT = {"environment.shadow": "none"}     # the scenario's sensor noise, no eclipse
 
 
 def _geometry(rec) -> dict:
@@ -152,7 +156,7 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
             for model in MODELS[source]:
                 levels = (2, 10) if model == DEFAULT_MODEL[source] else (10,)
                 for level in levels:
-                    vary = dict(_IDEAL)
+                    vary = dict(_SUNLIT)
                     vary.update({"uncertainty.source": source, "uncertainty.model": model,
                                  "uncertainty.level_pct": str(level)})
                     t = _campaign(f"{source}-{model}-{level}", vary, n, ekf, base, root_seed,
@@ -165,6 +169,14 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
                         models[source][model] = {"level_pct": 10.0,
                                                  "mean_peak_error_deg": st["mean_peak_error_deg"],
                                                  "rms_deg": st["rms_deg"]}
+        noisy = _campaign("ideal-noisy", dict(_SUNLIT), n, ekf, base, root_seed, **kw)
+        total += len(noisy)
+        res["ideal_noisy"] = {
+            "rms_deg": float(np.sqrt(np.mean(noisy["ekf-spacecraft.rms_deg"] ** 2))),
+            "max_error_deg": float(noisy["ekf-spacecraft.max_deg"].mean()),
+            "mean_error_deg": float(noisy["ekf-spacecraft.mean_deg"].mean()),
+            "max_error_worst_deg": float(noisy["ekf-spacecraft.max_deg"].max()),
+        }
         res["sensitivity"] = sens
         res["error_models"] = models
         both = ("ekf-spacecraft", "mekf-spacecraft")
@@ -186,10 +198,8 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         res["eclipse"] = {
             "ekf": ecl_stats(ecl, "ekf-spacecraft"),
             "mekf": ecl_stats(ecl, "mekf-spacecraft"),
-            "ekf_field10": {"eclipse_max_deg": float(ecl10["ekf-spacecraft.eclipse_max_deg"]
-                                                     .mean())},
-            "mekf_field10": {"eclipse_max_deg": float(ecl10["mekf-spacecraft.eclipse_max_deg"]
-                                                      .mean())},
+            "ekf_field10": ecl_stats(ecl10, "ekf-spacecraft"),
+            "mekf_field10": ecl_stats(ecl10, "mekf-spacecraft"),
         }
         res["runs"] = int(total)
         res["seeds_per_case"] = n
@@ -230,6 +240,7 @@ def _figures(out: pathlib.Path, root_seed: int, k: int) -> None:
 
     sc0 = load_scenario(SCENARIO)
     ideal_sc = sc0.replace({k2: (0.0 if v == "0" else v) for k2, v in _IDEAL.items()})
+    sunlit_sc = sc0.replace(dict(_SUNLIT))
     ekf = ["ekf-spacecraft"]
     # 1. Euler angles, estimate vs truth (paper's Fig. 2 style), ideal case, run 0
     _, rec, est = _run_case(ideal_sc, {}, run_seed(root_seed, 0), ekf, keep_series=True)
@@ -258,7 +269,7 @@ def _figures(out: pathlib.Path, root_seed: int, k: int) -> None:
             for i in range(k):
                 p = {"uncertainty.source": source, "uncertainty.model": DEFAULT_MODEL[source],
                      "uncertainty.level_pct": level}
-                _, rec, est = _run_case(ideal_sc, p, run_seed(root_seed, i), ekf, True)
+                _, rec, est = _run_case(sunlit_sc, p, run_seed(root_seed, i), ekf, True)
                 errs.append(np.degrees(error_angle_rad(rec.q_true, est["ekf-spacecraft"].q)))
             E = np.array(errs)
             ax.fill_between(rec.t, E.min(0), E.max(0), color=col, alpha=0.3)
