@@ -13,6 +13,7 @@ from gnomon.kernels import ekf_spacecraft as K
 from gnomon.metrics import error_angle_rad
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_euler, quat_rotate
+
 # the package's function, bound at collection (importing the submodule
 # gnomon.scenarios.simulate replaces the package attribute `simulate` by the module)
 from gnomon.scenarios import load_scenario, simulate
