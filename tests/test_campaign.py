@@ -53,6 +53,7 @@ def test_distributions_parse_and_reject():
     assert 2.0 <= min(x) and max(x) <= 3.0
     assert parse_distribution("choice(tilt, scale)").draw(rng) in ("tilt", "scale")
     assert parse_distribution("4.5").draw(rng) == 4.5
+    assert parse_distribution("[1, 2, 3.5]").draw(rng) == [1.0, 2.0, 3.5]
     for bad in ("normal(0,-1)", "uniform(3,1)", "normal(1)", "gamma(1,2)", "loguniform(0,1)",
                 "choice()"):
         with pytest.raises(InputError, match="k"):

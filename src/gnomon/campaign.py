@@ -14,7 +14,8 @@ A campaign is ``runs`` runs of one scenario. Run ``i`` is fully described by
 So every run can be re-run alone (``only=INDEX``) with identical results, on any machine.
 
 Distributions (``DIST``): ``normal(mu, sigma)``, ``uniform(a, b)``, ``choice(a, b, ...)``,
-``loguniform(a, b)`` and constants (``3.5``, ``tilt``, ``const(x)``). Unknown keys and
+``loguniform(a, b)`` and constants (``3.5``, ``tilt``, ``const(x)``, a vector
+``[0.5, -0.3, 0.4]``). Unknown keys and
 invalid parameters raise ``InputError`` before any run starts.
 
 Results: a Parquet table, one row per run: ``index``, ``seed``, ``status`` ("ok" or
@@ -112,6 +113,13 @@ def parse_distribution(text: str, key: str = "vary") -> Distribution:
     ``const(x)`` or a bare constant. Invalid parameters raise ``InputError`` naming ``key``."""
     m = _DIST_RE.match(str(text))
     if not m:
+        try:
+            v = ast.literal_eval(str(text).strip())
+        except (ValueError, SyntaxError):
+            v = None
+        if isinstance(v, list | tuple) and v and all(
+                isinstance(x, int | float) and not isinstance(x, bool) for x in v):
+            return Distribution("const", ([float(x) for x in v],), str(text))  # a vector
         try:
             return Distribution("const", (_literal(str(text)),), str(text))
         except ValueError as err:

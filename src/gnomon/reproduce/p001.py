@@ -16,6 +16,8 @@ with the task :func:`case_task`:
    default model, :mod:`gnomon.uncertainty`) at 2 % and 10 %, with the sensor noise and
    without eclipse.
 3. error models: every model of every source at 10 %.
+   Also the inertia error on a freely tumbling spacecraft (no control, ~0.7 deg/s):
+   ``inertia_tumbling`` (0, 2, 10 %), where the dynamics model matters.
 4. eclipse: the scenario as is (sensor noise, eclipse), EKF and MEKF; and with a 10 %
    field-model error (default model).
 
@@ -43,6 +45,9 @@ _TASK_KEYS = ("uncertainty.source", "uncertainty.model", "uncertainty.level_pct"
 _IDEAL = {"sensors.magnetometer.noise_nT": "0", "sensors.sun_sensor.noise_deg": "0",
           "environment.shadow": "none"}
 _SUNLIT = {"environment.shadow": "none"}     # the scenario's sensor noise, no eclipse
+# free tumbling (no control) at about 0.7 deg/s: where the inertia error shows
+_TUMBLING = {"environment.shadow": "none", "controller.mode": "none",
+             "initial.rate_ob_deg_s": "[0.5, -0.3, 0.4]"}
 
 
 def _geometry(rec) -> dict:
@@ -52,7 +57,9 @@ def _geometry(rec) -> dict:
     beta = np.degrees(np.arcsin(np.clip(-s[:, 1], -1, 1)))   # orbit normal = -y_o
     ang = np.degrees(np.arccos(np.clip(np.abs(np.sum(s * b, axis=1)), 0, 1)))
     lit = rec.extra["eclipse"] >= 0.5
+    w = np.degrees(np.linalg.norm(rec.extra["w_ob_b"], axis=1))
     return {"beta_deg": float(np.mean(beta)),
+            "rate_ob_rms_deg_s": float(np.sqrt(np.mean(w[rec.t >= SETTLE_S] ** 2))),
             "min_sun_field_angle_deg": float(ang[lit].min()) if lit.any() else float("nan"),
             "eclipse_fraction": float(np.mean(~lit))}
 
@@ -138,6 +145,7 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
             shutil.rmtree(base)
     base.mkdir(parents=True, exist_ok=True)
     ekf = ("ekf-spacecraft",)
+    both = ("ekf-spacecraft", "mekf-spacecraft")
     try:
         total = 0
         ideal = _campaign("ideal", dict(_IDEAL), n, ekf, base, root_seed, **kw)
@@ -178,14 +186,24 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
             "max_error_worst_deg": float(noisy["ekf-spacecraft.max_deg"].max()),
         }
         res["sensitivity"] = sens
+        tumbling = {}
+        for level in (0, 2, 10):
+            vary = dict(_TUMBLING)
+            vary.update({"uncertainty.source": "inertia", "uncertainty.level_pct": str(level)})
+            t = _campaign(f"inertia-tumbling-{level}", vary, n, both, base, root_seed, **kw)
+            total += len(t)
+            tumbling[str(level)] = {**_stats(t), "mekf_rms_deg": _stats(t, "mekf-spacecraft")[
+                "rms_deg"]}
+            tumbling["rate_ob_rms_deg_s"] = float(t["rate_ob_rms_deg_s"].mean())
+        res["inertia_tumbling"] = tumbling
         res["error_models"] = models
-        both = ("ekf-spacecraft", "mekf-spacecraft")
         ecl = _campaign("eclipse", {}, n, both, base, root_seed, **kw)
         f10 = {"uncertainty.source": "field_model", "uncertainty.level_pct": "10"}
         ecl10 = _campaign("eclipse-field10", f10, n, both, base, root_seed, **kw)
         total += len(ecl) + len(ecl10)
         res["geometry"] = {k: float(ecl[k].mean()) for k in
-                           ("beta_deg", "min_sun_field_angle_deg", "eclipse_fraction")}
+                           ("beta_deg", "min_sun_field_angle_deg", "eclipse_fraction",
+                            "rate_ob_rms_deg_s")}
         res["geometry"]["min_sun_field_angle_worst_deg"] = float(
             ecl["min_sun_field_angle_deg"].min())
 
