@@ -19,7 +19,8 @@ Distributions (``DIST``): ``normal(mu, sigma)``, ``uniform(a, b)``, ``choice(a, 
 invalid parameters raise ``InputError`` before any run starts.
 
 Results: a Parquet table, one row per run: ``index``, ``seed``, ``status`` ("ok" or
-"failed"), ``error`` (the exception, one line), ``elapsed_s``, ``param.KEY`` per varied key
+"failed"), ``error`` (the exception, one line), ``elapsed_s`` (wall) and ``cpu_s`` (CPU
+time of the worker process), ``param.KEY`` per varied key
 and the task's metrics. Rows are written as runs finish — the parent writes one part file
 ``parts/part-<first index>-<n>.parquet`` per finished chunk (atomically: temporary name,
 then rename), so a crash, SIGKILL or Ctrl-C loses only unfinished chunks; at the end the
@@ -321,6 +322,7 @@ _SCENARIO_CACHE: dict = {}
 def _execute(spec: _Spec, index: int) -> dict:
     """Run ``index``; never raises (a failure becomes a row with status 'failed')."""
     t0 = time.perf_counter()
+    c0 = time.process_time()
     seed = run_seed(spec.root_seed, index)
     row: dict[str, Any] = {"index": int(index), "seed": seed, "status": "ok", "error": ""}
     try:
@@ -341,6 +343,7 @@ def _execute(spec: _Spec, index: int) -> dict:
         where = f" ({tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno})" if tb else ""
         row["error"] = f"{type(err).__name__}: {err}{where}".replace("\n", " ")
     row["elapsed_s"] = time.perf_counter() - t0
+    row["cpu_s"] = time.process_time() - c0
     return row
 
 
@@ -659,7 +662,7 @@ def campaign_cli(scenario: str, runs: int, out: str | None, vary: Sequence[str] 
                "elapsed_s": round(res.elapsed_s, 3), "runs_per_s": round(res.runs_per_s, 3),
                "path": str(res.path) if res.path else None}
     metric_cols = [c for c in df.columns if c not in ("index", "seed", "status", "error",
-                                                       "elapsed_s")
+                                                       "elapsed_s", "cpu_s")
                    and not c.startswith("param.") and df[c].dtype.kind == "f"]
     ok = df[df["status"] == "ok"]
     summary["metrics"] = {c: {"mean": float(ok[c].mean()), "p95": float(ok[c].quantile(0.95)),
