@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from gnomon.reproduce import p001
@@ -49,3 +51,4 @@ def test_contract_and_targets(tmp_path):
     for name in ("euler_ideal.png", "error_envelopes.png", "eclipse.png"):
         assert (tmp_path / name).stat().st_size > 10_000
     assert np.isfinite(list(res["ideal"].values())).all()
+    assert json.loads((tmp_path / "metrics.json").read_text())["runs"] == res["runs"]

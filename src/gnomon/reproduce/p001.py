@@ -223,7 +223,10 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         res["seeds_per_case"] = n
         res["targets"] = _targets(res)
         if out_dir is not None:
+            import json
+
             _figures(pathlib.Path(out_dir), root_seed, min(n, 5))
+            (pathlib.Path(out_dir) / "metrics.json").write_text(json.dumps(res, indent=2))
         return res
     finally:
         if tmp is not None:
