@@ -665,9 +665,17 @@ def campaign_cli(scenario: str, runs: int, out: str | None, vary: Sequence[str] 
                                                        "elapsed_s", "cpu_s")
                    and not c.startswith("param.") and df[c].dtype.kind == "f"]
     ok = df[df["status"] == "ok"]
-    summary["metrics"] = {c: {"mean": float(ok[c].mean()), "p95": float(ok[c].quantile(0.95)),
-                              "max": float(ok[c].max())} for c in metric_cols if len(ok)}
+
+    def num(x):
+        x = float(x)
+        return x if math.isfinite(x) else None      # strict JSON: NaN -> null
+
+    summary["metrics"] = {c: {"mean": num(ok[c].mean()), "p95": num(ok[c].quantile(0.95)),
+                              "max": num(ok[c].max())} for c in metric_cols if len(ok)}
     if only is not None:
-        summary["row"] = {k: (v.item() if hasattr(v, "item") else v)
-                          for k, v in df.iloc[0].to_dict().items()}
+        row = {}
+        for k, v in df.iloc[0].to_dict().items():
+            v = v.item() if hasattr(v, "item") else v
+            row[k] = None if isinstance(v, float) and not math.isfinite(v) else v
+        summary["row"] = row
     return summary
