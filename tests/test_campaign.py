@@ -177,3 +177,28 @@ def test_dask_executor_with_a_worker_killed(tmp_path, reference):
     assert table["index"].tolist() == list(range(12))
     _same(table, reference)
     del distributed
+
+
+def test_ctrl_c_keeps_finished_runs(tmp_path):
+    out = tmp_path / "i"
+    script = textwrap.dedent(f"""
+        import signal
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        from gnomon.campaign import run_campaign
+        run_campaign("seed001", 40, {str(out)!r}, {{"duration_s": "2000"}}, executor="local",
+                     workers=2, chunk_size=1, filters={FILTERS!r}, progress=False)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", script], env={**os.environ, "PYTHONPATH": SRC},
+                            stderr=subprocess.DEVNULL)
+    parts = out / "parts"
+    deadline = time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        if parts.is_dir() and len(list(parts.glob("part-*.parquet"))) >= 2:
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None
+    os.kill(proc.pid, signal.SIGINT)
+    assert proc.wait(30) != 0
+    table = pd.read_parquet(out / "results.parquet")       # consolidated on the way out
+    assert 2 <= len(table) < 40 and table["index"].is_unique
+    assert not list(parts.glob("part-*"))
