@@ -141,6 +141,9 @@ class EKFSpacecraftParams(Params):
     orbit_rate_rad_s: float = param(0.0011, "rad/s",
                                     "mean motion (used if the recording lacks extra.w_io_o)")
     gravity_gradient: bool = param(True, "", "model the gravity-gradient torque")
+    control_inputs: bool = param(
+        True, "", "use the recording's wheel momentum and torque and magnetorquer dipole "
+        "(extra.h_wheel_b_Nms, hdot_wheel_b_Nm, m_dipole_b_Am2); false: all zero")
     use_sun: bool = param(True, "", "use the sun sensor when valid")
     substeps: int = param(1, "", "RK4 steps per sample in the prediction")
 
@@ -250,7 +253,11 @@ class EKFSpacecraft(Estimator):
             J = self.inertia
         inp = reference_inputs(rec, p.orbit_rate_rad_s)
         mag_T = rec.mag_tesla
-        tau = np.ascontiguousarray(np.cross(_series(rec, "m_dipole_b_Am2"), mag_T))
+        def series(name):
+            v = _series(rec, name)
+            return v if p.control_inputs else np.zeros_like(v)
+
+        tau = np.ascontiguousarray(np.cross(series("m_dipole_b_Am2"), mag_T))
         n_orb = float(np.mean(np.linalg.norm(inp["w_io_o"], axis=1)))
         gg = 3.0 * n_orb**2 if p.gravity_gradient else 0.0
         q0 = _initial_q(rec, inp)
@@ -261,8 +268,8 @@ class EKFSpacecraft(Estimator):
         Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) + [p.quat_noise_per_rt_s**2] * 4)
         args = (inp["dt"], inp["mag_u"], inp["sun_u"], inp["sun_valid"], inp["b_o_u"],
                 inp["s_o_u"], inp["w_io_o"], np.ascontiguousarray(J),
-                np.ascontiguousarray(np.linalg.inv(J)), _series(rec, "h_wheel_b_Nms"),
-                _series(rec, "hdot_wheel_b_Nm"), tau, gg, z0, P0, Q, p.sigma_mag**2, p.sigma_sun**2,
+                np.ascontiguousarray(np.linalg.inv(J)), series("h_wheel_b_Nms"),
+                series("hdot_wheel_b_Nm"), tau, gg, z0, P0, Q, p.sigma_mag**2, p.sigma_sun**2,
                 bool(p.use_sun), int(p.substeps))
         return args
 
