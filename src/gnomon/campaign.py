@@ -555,9 +555,12 @@ def run_campaign(scenario, runs: int, out_dir: str | pathlib.Path | None, vary=N
     done = set(read_results(out)["index"].astype(int).tolist())
     pending = [i for i in range(runs) if i not in done]
     n_workers = int(workers) if workers else (os.cpu_count() or 1)
-    if chunk_size is None:
-        chunk_size = max(1, min(25, len(pending) // (n_workers * 8) or 1))
-    chunks = [pending[i:i + chunk_size] for i in range(0, len(pending), chunk_size)]
+
+    def make_chunks(n_parallel: int) -> list[list[int]]:
+        # about 8 chunks per worker (load balance) and at most 25 runs per chunk (what a
+        # crash can lose); ``chunk_size`` fixes it
+        size = chunk_size or max(1, min(25, len(pending) // (n_parallel * 8) or 1))
+        return [pending[i:i + size] for i in range(0, len(pending), size)]
     ran = failed = 0
     bar = None
     if progress:
@@ -576,14 +579,14 @@ def run_campaign(scenario, runs: int, out_dir: str | pathlib.Path | None, vary=N
             bar.update(len(rows))
 
     try:
-        if chunks:
+        if pending:
             if executor == "serial":
-                for c in chunks:
+                for c in make_chunks(1):
                     finished(_execute_chunk(spec, c))
             elif executor == "local":
-                _run_local(spec, chunks, n_workers, finished)
+                _run_local(spec, make_chunks(n_workers), n_workers, finished)
             else:
-                _run_dask(spec, chunks, workers, scheduler, finished, dask_retries)
+                _run_dask(spec, make_chunks, workers, scheduler, finished, dask_retries)
     finally:
         if bar is not None:
             bar.close()
@@ -609,7 +612,7 @@ def _run_local(spec, chunks, n_workers, finished):
     pool.shutdown()
 
 
-def _run_dask(spec, chunks, workers, scheduler, finished, retries):
+def _run_dask(spec, make_chunks, workers, scheduler, finished, retries):
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -627,8 +630,9 @@ def _run_dask(spec, chunks, workers, scheduler, finished, retries):
             raise InputError(f"cannot reach the Dask scheduler: {err}",
                              field="scheduler") from None
     try:
+        n_parallel = max(1, sum(client.nthreads().values()))
         futs = [client.submit(_execute_chunk, spec, c, pure=False, retries=retries)
-                for c in chunks]
+                for c in make_chunks(n_parallel)]
         try:
             for f in as_completed(futs):
                 finished(f.result())
