@@ -18,6 +18,8 @@ _ENTRIES: dict[str, str] = {
     "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
     "qcf": "gnomon.estimators.qcf:QuaternionCF",
     "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
+    "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
+    "mekf-spacecraft": "gnomon.estimators.ekf_spacecraft:MEKFSpacecraft",
 }
 
 

@@ -75,8 +75,6 @@ def simulate_seed(seed: int, duration_s: float | None = None, mag_noise_nT: floa
     the orbital frame (1: the preset, about ±15/10/46° roll/pitch/yaw; 0: about
     ±3/2/6°).
     """
-    # the submodule, not the package attribute: importing gnomon.scenarios.simulate
-    # rebinds gnomon.scenarios.simulate to the module (reported to the world's owner)
     from gnomon.scenarios import load_scenario, simulate
 
     sc = load_scenario("seed000")
