@@ -151,3 +151,15 @@ def test_scenarios_and_simulate_write_a_readable_recording(tmp_path, capsys):
     code, _, err = run_cli("simulate", "seed001", "--out", tmp_path / "x.h5",
                            "--set", "spacecraft.nosuch=1")
     assert code == 2 and "nosuch" in err and "Traceback" not in err
+
+
+def test_campaign_command_json_and_bad_vary(tmp_path, capsys):
+    assert main(["campaign", "seed001", "--runs", "3", "--out", tmp_path / "c",
+                 "--vary", "duration_s=300", "--filter", "mekf-spacecraft",
+                 "--executor", "serial", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["rows"] == 3 and summary["failed_total"] == 0
+    assert summary["metrics"]["mekf-spacecraft.rms_deg"]["max"] < 1.0
+    code, _, err = run_cli("campaign", "seed001", "--runs", "2", "--out", tmp_path / "d",
+                           "--vary", "spacecraft.nosuch=normal(0,1)")
+    assert code == 2 and "nosuch" in err and "Traceback" not in err

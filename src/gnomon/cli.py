@@ -210,6 +210,33 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_campaign(args) -> int:
+    """``gnomon.campaign.campaign_cli(scenario, runs, out, vary, ...)`` (``run_campaign``)."""
+    from gnomon.campaign import campaign_cli
+
+    summary = campaign_cli(args.scenario, args.runs, args.out, args.vary or [],
+                           executor=args.executor, scheduler=args.scheduler,
+                           workers=args.workers, resume=args.resume, only=args.only,
+                           root_seed=args.seed, filters=args.filter,
+                           progress=not args.json and sys.stderr.isatty())
+    if args.json:
+        print_json(summary)
+        return 0
+    print(f"campaign {args.scenario}: {summary['rows']} of {summary['runs']} runs in the table "
+          f"({summary['ran']} ran now, {summary['failed_total']} failed), "
+          f"{summary['runs_per_s']:.2f} runs/s")
+    def fmt(v):
+        return "n/a" if v is None else f"{v:.4g}"
+
+    for name, m in (summary.get("metrics") or {}).items():
+        print(f"  {name}: mean {fmt(m['mean'])}, p95 {fmt(m['p95'])}, max {fmt(m['max'])}")
+    if summary["failed_total"] and summary.get("path"):
+        print("  failed runs and their errors: the 'status' and 'error' columns of the table")
+    if summary.get("path"):
+        print(f"  results: {summary['path']}")
+    return 0
+
+
 def cmd_reproduce(args) -> int:
     """``gnomon.reproduce.pNNN.run(out_dir, quick)`` (``all``: ``gnomon.reproduce.run_all``)."""
     from gnomon import reproduce
@@ -300,6 +327,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scenario value by its dotted key")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("campaign", help="Monte Carlo campaign of a scenario (local or Dask)")
+    s.add_argument("scenario", help="preset name or scenario YAML")
+    s.add_argument("--runs", type=int, required=True, help="number of runs")
+    s.add_argument("--out", help="directory for results.parquet and campaign.json")
+    s.add_argument("--vary", action="append", metavar="KEY=DIST",
+                   help="e.g. spacecraft.inertia_error_pct=normal(0,2), uniform(a,b), "
+                        "choice(a,b), a constant; filter.NAME.PARAM for filter parameters")
+    s.add_argument("--executor", default="local", choices=["local", "dask", "serial"])
+    s.add_argument("--scheduler", help="Dask scheduler address tcp://host:port "
+                                       "(default: start a LocalCluster)")
+    s.add_argument("--workers", type=int, help="worker processes")
+    s.add_argument("--resume", action="store_true", help="run only what is missing in --out")
+    s.add_argument("--only", type=int, metavar="INDEX", help="re-run one run alone")
+    s.add_argument("--seed", type=int, default=0, help="root seed (SeedSequence)")
+    s.add_argument("--filter", action="append", help="filter(s) to run on each simulation")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_campaign)
 
     available = [n for n in PAPERS
                  if importlib.util.find_spec(f"gnomon.reproduce.p{n}") is not None]
