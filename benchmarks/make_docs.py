@@ -68,6 +68,7 @@ def main() -> None:
     broad = gnomon_json("benchmark", "broad", "--data", str(data))
     bench = gnomon_json("bench", *(["--quick"] if args.quick else []))
     today = dt.date.today().isoformat()
+    n_trials = len({r["trial"] for r in broad["trials"]})
     speed = markdown_table(bench)
     page = f"""# Benchmarks
 
@@ -76,7 +77,7 @@ Generated on {today} by `python benchmarks/make_docs.py` from the JSON of
 
 ## Accuracy on BROAD
 
-BROAD (Laidig, Caruso, Cereatti, Seel, *Data* 6(7):72, 2021): {len({r['trial'] for r in broad['trials']})}
+BROAD (Laidig, Caruso, Cereatti, Seel, *Data* 6(7):72, 2021): {n_trials}
 trials, every method with its default parameters, causal, the benchmark's own metric
 (RMSE over the movement phases with a valid truth; no alignment).
 

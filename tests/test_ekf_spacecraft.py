@@ -13,7 +13,6 @@ from gnomon.kernels import ekf_spacecraft as K
 from gnomon.metrics import error_angle_rad
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_euler, quat_rotate
-
 from gnomon.scenarios import load_scenario, simulate
 
 J = np.array([[0.40, 0.006, -0.004], [0.006, 0.58, 0.01], [-0.004, 0.01, 0.55]])

@@ -248,7 +248,6 @@ def simulate_and_score(scenario, params: dict, seed: int, filters: Sequence[str]
     (NaN when there is no such sample); ``eclipse_fraction`` of the recording.
     """
     from gnomon.estimators import registry
-
     from gnomon.scenarios import simulate
 
     rec = simulate(scenario, rng_seed=seed)
