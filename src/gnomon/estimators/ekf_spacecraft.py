@@ -85,16 +85,18 @@ def reference_inputs(rec: Recording, orbit_rate_rad_s: float) -> dict:
     from ``extra['w_io_o']`` if present, else ``[0, -orbit_rate, 0]``; ``dt`` (N,).
     """
     n = len(rec)
-    mag_u = _unit(rec.mag)
+    mag_u = _unit_or_zero(rec.mag)
     if rec.sun is not None:
         sun_valid = np.asarray(rec.sun_valid, bool).copy()
-        sun_u = np.where(sun_valid[:, None], _unit(np.nan_to_num(rec.sun)), 0.0)
+        sun_u = np.where(sun_valid[:, None], _unit_or_zero(np.nan_to_num(rec.sun)), 0.0)
     else:
         sun_valid = np.zeros(n, bool)
         sun_u = np.zeros((n, 3))
     b_o = rec.extra.get("b_o_model_nT")
-    b_o_u = _unit(rec.extra["b_o_nT"] if b_o is None else b_o)
-    s_o_u = _unit(rec.extra["s_o"])
+    b_o_u = _unit_or_zero(rec.extra["b_o_nT"] if b_o is None else b_o)
+    s_o_u = _unit_or_zero(np.nan_to_num(np.asarray(rec.extra["s_o"], float)))
+    mag_u = np.where(np.any(b_o_u != 0.0, axis=1)[:, None], mag_u, 0.0)  # no reference: unused
+    sun_valid &= np.any(s_o_u != 0.0, axis=1)
     if "w_io_o" in rec.extra:
         w_io_o = np.asarray(rec.extra["w_io_o"], float)
     else:
@@ -107,13 +109,51 @@ def reference_inputs(rec: Recording, orbit_rate_rad_s: float) -> dict:
             "b_o_u": c(b_o_u), "s_o_u": c(np.nan_to_num(s_o_u)), "w_io_o": c(w_io_o)}
 
 
+def _unit_or_zero(v) -> np.ndarray:
+    """Rows of ``v`` (N, 3) normalised; zero (or non-finite) rows stay zero ("no vector")."""
+    v = np.asarray(v, float)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    ok = np.isfinite(n) & (n > 0.0)
+    return np.where(ok, v / np.where(ok, n, 1.0), 0.0)
+
+
 def _initial_q(rec: Recording, inp: dict) -> np.ndarray:
-    """``q_ob`` at the first sample: TRIAD (sun primary) if the sun is seen, else mag + nadir."""
-    k = 0
-    if inp["sun_valid"][k]:
-        return triad_q_ob(inp["sun_u"][k], inp["mag_u"][k], inp["s_o_u"][k], inp["b_o_u"][k])
-    # no sun: the field alone fixes two axes; take the attitude closest to orbit-fixed
-    return triad_q_ob(inp["mag_u"][k], [0.0, 0.0, 1.0], inp["b_o_u"][k], [0.0, 0.0, 1.0])
+    """``q_ob`` at the first usable sample: TRIAD (sun primary) if the sun is seen there,
+    else the field and nadir; the identity (orbit-fixed) without any usable vector."""
+    usable = np.flatnonzero(np.any(inp["mag_u"] != 0.0, axis=1))
+    if usable.size == 0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    k = int(usable[0])
+    try:
+        if inp["sun_valid"][k]:
+            return triad_q_ob(inp["sun_u"][k], inp["mag_u"][k], inp["s_o_u"][k],
+                              inp["b_o_u"][k])
+        # no sun: the field alone fixes two axes; take the attitude closest to orbit-fixed
+        return triad_q_ob(inp["mag_u"][k], [0.0, 0.0, 1.0], inp["b_o_u"][k],
+                          [0.0, 0.0, 1.0])
+    except InputError:  # parallel pair (e.g. the field along nadir): orbit-fixed guess
+        return np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _continue(f, rec: Recording, args: list, per_sample, z0_at: int, P0_at: int, state,
+              b0_at: int | None = None):
+    """Kernel arguments that continue ``f``'s earlier run, and how many output rows to drop.
+
+    The kernels predict sample k with the inputs of sample k-1, so a continued run
+    prepends the last sample the filter saw (``f.last_row``) and starts from the state
+    it ended in: the outputs after that row equal those of one uninterrupted run.
+    """
+    if f.last_row is None:
+        return args, 0
+    dt0 = f.first_dt(rec)
+    for j, i in enumerate(per_sample):
+        args[i] = np.ascontiguousarray(np.concatenate([f.last_row[j], args[i]]))
+    args[0][1] = dt0
+    args[z0_at] = np.asarray(state[0], float).copy()
+    args[P0_at] = np.asarray(state[1], float).copy()
+    if b0_at is not None:
+        args[b0_at] = np.asarray(f.bias, float).copy()
+    return args, 1
 
 
 def _series(rec: Recording, name: str) -> np.ndarray:
@@ -189,10 +229,14 @@ class EKFSpacecraft(Estimator):
 
     Params = EKFSpacecraftParams
 
+    state_fields = ("z", "P", "_prev", "last_row", "t_last")
+
     def reset(self) -> None:
         self.z = None
         self.P = None
         self._prev = None
+        self.last_row = None  # the per-sample kernel inputs of the last sample ``run`` saw
+        self.t_last = None
 
     def update(self, dt_s: float, mag_b, b_o, sun_b=None, s_o=None, *, w_io_o=None,
                h_b=(0.0, 0.0, 0.0), hdot_b=(0.0, 0.0, 0.0), tau_b=(0.0, 0.0, 0.0),
@@ -279,10 +323,15 @@ class EKFSpacecraft(Estimator):
         from gnomon.kernels.ekf_spacecraft import ekf_batch
 
         self.check_inputs(rec)
-        args = self._setup(rec, inertia)
+        args = list(self._setup(rec, inertia))
+        per_sample = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)  # dt, vectors, w_io_o, h, hdot, tau
+        args, skip = _continue(self, rec, args, per_sample, z0_at=13, P0_at=14,
+                               state=(self.z, self.P))
         fn = ekf_batch if compiled else getattr(ekf_batch, "py_func", ekf_batch)
-        z, pd, innov = fn(*args)
-        self.z = z[-1].copy()
+        z, pd, innov, P_end = fn(*args)
+        self.last_row = [args[i][-1:].copy() for i in per_sample]
+        z, pd, innov = z[skip:], pd[skip:], innov[skip:]
+        self.z, self.P, self.t_last = z[-1].copy(), P_end, float(rec.t[-1])
         return Estimate(
             t=rec.t, q=z[:, 3:7], estimator=self.name, params=self.params.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"),
@@ -301,11 +350,15 @@ class MEKFSpacecraft(Estimator):
 
     Params = MEKFSpacecraftParams
 
+    state_fields = ("q", "bias", "P", "_prev", "last_row", "t_last")
+
     def reset(self) -> None:
         self.q = None
         self.bias = np.zeros(3)
         self.P = None
         self._prev = None
+        self.last_row = None  # the per-sample kernel inputs of the last sample ``run`` saw
+        self.t_last = None
 
     def update(self, dt_s: float, gyro_rad_s, mag_b, b_o, sun_b=None, s_o=None, *,
                w_io_o=None) -> np.ndarray:
@@ -354,9 +407,15 @@ class MEKFSpacecraft(Estimator):
         from gnomon.kernels.ekf_spacecraft import mekf_batch
 
         self.check_inputs(rec)
+        per_sample = (0, 1, 2, 3, 4, 5, 6, 7)  # dt, gyro, vectors, w_io_o
+        args, skip = _continue(self, rec, list(self._setup(rec)), per_sample, z0_at=8,
+                               P0_at=10, state=(self.q, self.P), b0_at=9)
         fn = mekf_batch if compiled else getattr(mekf_batch, "py_func", mekf_batch)
-        q, b, pd, innov = fn(*self._setup(rec))
-        self.q, self.bias = q[-1].copy(), b[-1].copy()
+        q, b, pd, innov, P_end = fn(*args)
+        self.last_row = [args[i][-1:].copy() for i in per_sample]
+        q, b, pd, innov = q[skip:], b[skip:], pd[skip:], innov[skip:]
+        self.q, self.bias, self.P = q[-1].copy(), b[-1].copy(), P_end
+        self.t_last = float(rec.t[-1])
         return Estimate(
             t=rec.t, q=q, estimator=self.name, params=self.params.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"),

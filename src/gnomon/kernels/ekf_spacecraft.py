@@ -191,24 +191,32 @@ def ekf_step(z, P, Ts, mag_u, sun_u, sun_ok, b_o_u, s_o_u, w_io_o, J, Jinv, h, h
     eye7 = np.eye(7)
     Phi = eye7 + ekf_jacobian(z, J, Jinv, h, w_io_o, gg) * Ts
     P = Phi @ P @ Phi.T + Q * Ts
-    # --- update with the vectors available now
+    # --- update with the vectors available now (a zero vector is a dropout: not used)
     q = z[3:7]
-    m = 6 if sun_ok else 3
+    mag_ok = mag_u[0] ** 2 + mag_u[1] ** 2 + mag_u[2] ** 2 > 0.0
+    sun_ok = sun_ok and sun_u[0] ** 2 + sun_u[1] ** 2 + sun_u[2] ** 2 > 0.0
+    m = 3 * mag_ok + 3 * sun_ok
+    innov[0] = np.nan
+    innov[1] = np.nan
+    if m == 0:
+        return z, P
     H = np.zeros((m, 7))
     y = np.empty(m)
     R = np.zeros((m, m))
-    H[0:3, 3:7] = d_rt_v(q, b_o_u)
-    y[0:3] = mag_u - rt_v(q, b_o_u)
-    for i in range(3):
-        R[i, i] = r_mag
-    innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
-    innov[1] = np.nan
-    if m == 6:
-        H[3:6, 3:7] = d_rt_v(q, s_o_u)
-        y[3:6] = sun_u - rt_v(q, s_o_u)
-        for i in range(3, 6):
+    r0 = 0
+    if mag_ok:
+        H[0:3, 3:7] = d_rt_v(q, b_o_u)
+        y[0:3] = mag_u - rt_v(q, b_o_u)
+        for i in range(3):
+            R[i, i] = r_mag
+        innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
+        r0 = 3
+    if sun_ok:
+        H[r0:r0 + 3, 3:7] = d_rt_v(q, s_o_u)
+        y[r0:r0 + 3] = sun_u - rt_v(q, s_o_u)
+        for i in range(r0, r0 + 3):
             R[i, i] = r_sun
-        innov[1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
+        innov[1] = math.sqrt(y[r0] ** 2 + y[r0 + 1] ** 2 + y[r0 + 2] ** 2)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
     z = z + K @ y
@@ -231,7 +239,8 @@ def ekf_batch(dt, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, J, Jinv, h, hdo
     torque; ``z0`` (7,), ``P0`` (7, 7), ``Q`` (7, 7) per second, ``r_mag``/``r_sun``
     variances of the unit-vector components; ``substeps`` RK4 steps per sample.
 
-    Returns ``z`` (N, 7), the covariance diagonal (N, 7) and the innovation norms (N, 2).
+    Returns ``z`` (N, 7), the covariance diagonal (N, 7), the innovation norms (N, 2; NaN
+    where a vector was not used) and the final covariance (7, 7).
     """
     n = dt.shape[0]
     zs = np.empty((n, 7))
@@ -249,7 +258,7 @@ def ekf_batch(dt, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, J, Jinv, h, hdo
         zs[k] = z
         for i in range(7):
             pd[k, i] = P[i, i]
-    return zs, pd, innov
+    return zs, pd, innov, P
 
 
 @njit(cache=True)
@@ -290,24 +299,32 @@ def mekf_step(q, b, P, Ts, gyro_prev, mag_u, sun_u, sun_ok, b_o_u, s_o_u, w_io_o
     for i in range(3):
         P[i, i] += arw_var * Ts
         P[3 + i, 3 + i] += rrw_var * Ts
-    m = 6 if sun_ok else 3
+    mag_ok = mag_u[0] ** 2 + mag_u[1] ** 2 + mag_u[2] ** 2 > 0.0
+    sun_ok = sun_ok and sun_u[0] ** 2 + sun_u[1] ** 2 + sun_u[2] ** 2 > 0.0
+    m = 3 * mag_ok + 3 * sun_ok
+    innov[0] = np.nan
+    innov[1] = np.nan
+    if m == 0:  # no usable vector (dropouts): propagation only
+        return q, b, P
     H = np.zeros((m, 6))
     y = np.empty(m)
     R = np.zeros((m, m))
-    yh = rt_v(q, b_o_u)
-    H[0:3, 0:3] = skew(yh)
-    y[0:3] = mag_u - yh
-    for i in range(3):
-        R[i, i] = r_mag
-    innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
-    innov[1] = np.nan
-    if m == 6:
+    r0 = 0
+    if mag_ok:
+        yh = rt_v(q, b_o_u)
+        H[0:3, 0:3] = skew(yh)
+        y[0:3] = mag_u - yh
+        for i in range(3):
+            R[i, i] = r_mag
+        innov[0] = math.sqrt(y[0] ** 2 + y[1] ** 2 + y[2] ** 2)
+        r0 = 3
+    if sun_ok:
         ys = rt_v(q, s_o_u)
-        H[3:6, 0:3] = skew(ys)
-        y[3:6] = sun_u - ys
-        for i in range(3, 6):
+        H[r0:r0 + 3, 0:3] = skew(ys)
+        y[r0:r0 + 3] = sun_u - ys
+        for i in range(r0, r0 + 3):
             R[i, i] = r_sun
-        innov[1] = math.sqrt(y[3] ** 2 + y[4] ** 2 + y[5] ** 2)
+        innov[1] = math.sqrt(y[r0] ** 2 + y[r0 + 1] ** 2 + y[r0 + 2] ** 2)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T
     dx = K @ y
@@ -332,7 +349,8 @@ def mekf_batch(dt, gyro, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, q0, b0, 
     ``Φ = [[exp(-[ω×]Ts), -I Ts], [0, I]]``, ``Q = diag(arw_var Ts I, rrw_var Ts I)``
     (``arw_var`` rad²/s, ``rrw_var`` rad²/s³); vector update ``H = [[ŷ×], 0]``.
 
-    Returns ``q`` (N, 4), bias (N, 3) rad/s, covariance diagonal (N, 6), innovations (N, 2).
+    Returns ``q`` (N, 4), bias (N, 3) rad/s, covariance diagonal (N, 6), innovations (N, 2;
+    NaN where a vector was not used) and the final covariance (6, 6).
     """
     n = dt.shape[0]
     qs = np.empty((n, 4))
@@ -354,4 +372,4 @@ def mekf_batch(dt, gyro, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, q0, b0, 
         bs[k] = b
         for i in range(6):
             pd[k, i] = P[i, i]
-    return qs, bs, pd, innov
+    return qs, bs, pd, innov, P
