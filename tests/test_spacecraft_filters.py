@@ -199,20 +199,18 @@ def test_reproduction_quick_meets_targets():
     t = r["tuned"]
     for k in ("ecf", "qcf"):
         assert set(t[k]) >= {"kp", "ki", "mean_rms_deg", "p95_rms_deg"}
-    # fair comparison: within a few percent of each other (the check found 1-2 %)
-    assert 0.9 < t["ratio_ecf_over_qcf"] < 1.1
-    # after the drift step, with gains chosen for it (within 5 % of the best overall RMS),
-    # the two are equivalent (the explicit filter's integral acts with 2 K_I about c)
-    d = t["drift_aware"]
-    assert 0.8 < d["qcf"]["drift_rms_deg"] / d["ecf"]["drift_rms_deg"] < 1.2
+    # fair comparison (issue target >= 0.95): within a few percent of each other
+    assert 0.95 <= t["ratio_ecf_over_qcf"] < 1.1
     # same gain: the paper's ratio reappears, and the c axis carries it
     sg = r["same_gain"]
     assert sg["ratio_ecf_over_qcf"] >= 2.0
     ax = sg["axis_rms_deg"]
     assert ax["ecf"]["c"] > 3 * ax["qcf"]["c"]
-    # sun loss: the improved method beats the paper's substitute
+    # sun loss on the preset (a satellite swinging a few degrees): the paper's bound holds
+    # on every seed, and the improved method beats the paper's substitute in RMS
     sl = r["sun_loss"]
-    assert sl["improved"]["rms_deg"] < 0.7 * sl["paper"]["rms_deg"]
+    assert sl["paper"]["within_paper_bound_fraction"] == 1.0
+    assert sl["improved"]["rms_deg"] < sl["paper"]["rms_deg"]
     assert set(sl["paper"]["max_abs_error_deg"]) == {"roll", "pitch", "yaw"}
     # for a small swing (motion_scale 0: about 3/2/6 deg) the paper's bound holds, and the
     # hybrid MEKF is about as good as the paper's substitute there
