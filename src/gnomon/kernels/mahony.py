@@ -133,23 +133,34 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
                  q_out, b_out, flags):
     """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
 
-    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs (N, 4), (N, 3), (N, 3).
+    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs ``q_out`` (N, 4),
+    ``b_out`` (N, 3) and ``flags`` (N,) uint8 with the bits of ``mahony_step``. The state
+    stays in registers over the loop (same arithmetic as ``mahony_step``).
     """
-    n = dt.shape[0]
-    for i in range(n):
-        f = mahony_step(q, b, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
-                        acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
-                        heading_only, max_dt)
-        flags[i, 0] = (f & 1) != 0
-        flags[i, 1] = (f & 2) != 0
-        flags[i, 2] = (f & 4) != 0
-        q_out[i, 0] = q[0]
-        q_out[i, 1] = q[1]
-        q_out[i, 2] = q[2]
-        q_out[i, 3] = q[3]
-        b_out[i, 0] = b[0]
-        b_out[i, 1] = b[1]
-        b_out[i, 2] = b[2]
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    b0, b1, b2 = b[0], b[1], b[2]
+    for i in range(dt.shape[0]):
+        h = dt[i]
+        f = 0
+        if h > max_dt:  # gap: gyro propagation only
+            w, x, y, z, _ = _exp_mul(w, x, y, z, (gyro[i, 0] - b0) * h, (gyro[i, 1] - b1) * h,
+                                     (gyro[i, 2] - b2) * h, True, True)
+            f = 4
+        elif h > 0.0:
+            w, x, y, z, b0, b1, b2, f, _ = _core(
+                w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
+                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
+                heading_only, True)
+        flags[i] = f
+        q_out[i, 0] = w
+        q_out[i, 1] = x
+        q_out[i, 2] = y
+        q_out[i, 3] = z
+        b_out[i, 0] = b0
+        b_out[i, 1] = b1
+        b_out[i, 2] = b2
+    q[0], q[1], q[2], q[3] = w, x, y, z
+    b[0], b[1], b[2] = b0, b1, b2
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
