@@ -57,7 +57,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.estimators.initial import initial_attitude
 from gnomon.recording import Recording
@@ -182,13 +181,18 @@ def accel_lowpass(q_nb, accel_b, lp_n, w: float):
     return C.T @ lp, lp
 
 
+#: |sin I| at most (inclination below 87.4 deg) for the reference field: nearer the pole
+#: (or with |a| > g making a·m/(g|m|) exceed 1) H = sqrt(1 - s²) would vanish or be NaN
+_MAX_ABS_DIP = 0.999
+
+
 def update_dip(dip_s: float, count: float, accel_b, mag_b, dt: float, tau: float, g: float):
     """Running mean of ``a·m / (g |m|)`` ≈ ``cos(angle(a, m))`` = ``-Z`` of the normalised
     field (rotation invariant, so it can be averaged while the body moves; dividing by
     ``g`` rather than ``|a|`` keeps accelerometer noise from biasing it: ``E|a| > g``).
 
     ``count += 1``, ``w = max(1/count, dt/tau)``, ``s += w (cos - s)``; ``tau <= 0``
-    leaves it unchanged. Returns ``(s, count)``; the reference is
+    leaves it unchanged. Returns ``(s, count)`` with ``|s| <= 0.999``; the reference is
     ``Z = -s``, ``H = sqrt(1 - s²)``.
     """
     if tau <= 0.0:
@@ -198,7 +202,8 @@ def update_dip(dip_s: float, count: float, accel_b, mag_b, dt: float, tau: float
     count = count + 1.0
     w = max(1.0 / count, dt / tau)
     cos = (a @ m) / (g * np.sqrt(m @ m))
-    return dip_s + w * (cos - dip_s), count
+    s = dip_s + w * (cos - dip_s)
+    return min(max(s, -_MAX_ABS_DIP), _MAX_ABS_DIP), count
 
 
 def reference_field(q_nb, mag_b) -> tuple[float, float, float]:
@@ -313,9 +318,9 @@ class Eskf(Estimator):
                     else (-float(np.sin(np.radians(60.0))), 1.0))
         if p.inclination_known:
             self.dip = (-float(np.sin(p.inclination)), float(max(len(cos), 1)))
-        if abs(self.dip[0]) >= 1.0 - 1e-9:
-            raise InputError("magnetometer parallel to gravity at initialisation: "
-                             "heading undefined", field="mag")
+        if abs(self.dip[0]) > _MAX_ABS_DIP:  # field along gravity: heading unobservable for now;
+            # keep the filter running (H > 0) and let the running mean learn the real dip
+            self.dip = (float(np.clip(self.dip[0], -_MAX_ABS_DIP, _MAX_ABS_DIP)), self.dip[1])
         self.P = np.diag([(0.5 * p.init_att_std) ** 2] * 3 + [p.init_bias_std**2] * 3)
 
     @property

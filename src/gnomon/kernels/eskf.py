@@ -441,6 +441,7 @@ def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var
                 count += 1.0
                 w = max(1.0 / count, dt[k] / dip_tau)
                 dip_s += w * (cos_am - dip_s)
+                dip_s = min(max(dip_s, -0.999), 0.999)  # as estimators.eskf.update_dip
             mag_z = -dip_s
             mag_h = np.sqrt(1.0 - dip_s * dip_s)
             if acc_lp_tau > 0.0:
