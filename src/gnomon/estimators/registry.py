@@ -12,6 +12,7 @@ from gnomon.errors import InputError
 
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
+    "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
 }
 
 

@@ -1,0 +1,500 @@
+"""Robust decoupled AHRS for real IMUs: rest detection, gyro bias estimation in rest and
+motion, inertial-frame accelerometer filtering, heading-only magnetometer correction with
+disturbance rejection and a magnetometer-driven heading-rate bias loop.
+
+The structure follows VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
+estimation with bias estimation and magnetic disturbance rejection", Information
+Fusion 91:187-204, 2023, arXiv:2203.17024); the implementation, the parameter
+units and the extra heading-bias loop are gnomon's. Frames: body b (sensor),
+almost-inertial frame I (where the strapdown integration lives), the
+inclination-corrected frame 6 (its z axis is up) and the navigation frame
+n = ENU. The estimate is
+
+    q_nb = q_z(δ) ⊗ q_6I ⊗ q_Ib
+
+* **Strapdown** ``q_Ib ← q_Ib ⊗ exp((ω - b̂) dt)``.
+* **Inclination** (``tau_acc_s``): the accelerometer is rotated into I and
+  low-pass filtered there (second-order Butterworth, time constant ``tau_acc_s``;
+  the first ``tau_acc_s`` seconds are a running mean, which also initialises the
+  tilt from the first samples). Linear accelerations are short-lived in I and
+  average out, while gravity, fixed in I, passes. ``q_6I`` is then corrected by
+  the rotation that takes the filtered vector (seen in frame 6) to up; with the
+  filtering already done, the full correction is applied every sample.
+* **Rest detection** (``rest_bias``): gyro and accelerometer low-passed with
+  ``rest_tau_s``; rest when both deviate from their low-pass by less than
+  ``rest_th_gyro_deg_s`` / ``rest_th_acc_m_s2`` for ``rest_min_s``.
+* **Gyro bias** (3-state Kalman filter, rad/s): at rest the measurement is the
+  low-passed gyro (``H = I``, std ``bias_sigma_rest_deg_s``); in motion
+  (``motion_bias``) the inclination correction is the measurement of the
+  horizontal components of ``R_6b b`` (both sides low-passed like the
+  accelerometer), std ``bias_sigma_motion_deg_s``; the vertical component is
+  only weakly pulled to zero (``bias_vertical_forgetting``). The covariance
+  grows so that the uncertainty reaches 0.1 deg/s after ``bias_forgetting_s``.
+* **Heading** (``tau_mag_s``): the magnetometer, seen in frame 6, gives the
+  heading disagreement ``atan2(m_E, m_N) - δ``; ``δ`` follows it with a
+  first-order filter. The magnetometer never touches the inclination. During
+  the first ``tau_mag_s`` seconds the gain is at least ``1/k`` (running mean).
+* **Heading-rate bias loop** (``mag_bias_gain_per_s``, gnomon's addition): the
+  heading disagreement also integrates into the gyro bias along the vertical
+  (a PI instead of a P heading loop), so that a vertical bias that the
+  accelerometer cannot see does not leave a steady heading lag of ``b·tau_mag``.
+* **Magnetic disturbance** (``mag_rejection``): the field's norm and dip (in
+  frame 6, low-passed with ``mag_current_tau_s``) are compared with a learned
+  reference (``mag_ref_tau_s``); outside ``mag_norm_th`` (relative) or
+  ``mag_dip_th_deg`` the field is flagged as disturbed and ignored for up to
+  ``mag_max_reject_s`` (then used with gain / ``mag_reject_factor``); it is
+  accepted again after ``mag_min_undisturbed_s`` inside the bounds. A new field
+  that stays steady for ``mag_new_s`` of motion (``mag_new_first_s`` when no
+  reference exists yet) becomes the reference.
+
+Filter coefficients use the nominal sample time ``ts`` (the median interval of
+the first recording run, or the first positive ``dt`` of ``update``); the gyro
+is integrated over the actual intervals. Intervals longer than ``max_dt_s`` are
+gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
+
+Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
+(bool), ``acc_correction_rad_s`` (inclination correction rate), ``mag_gain``
+(heading gain used, 0 while rejected), ``acc_skipped``, ``mag_skipped``, ``gap``.
+
+The readable per-sample ``update`` is the reference; ``run`` uses the numba
+kernel ``gnomon.kernels.robust_ahrs`` (tested sample by sample against it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gnomon.errors import InputError
+from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.recording import Recording
+from gnomon.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
+
+__all__ = ["RobustAHRSParams", "RobustAHRS", "coefficients", "butter2", "new_state"]
+
+
+@dataclass(frozen=True)
+class RobustAHRSParams(Params):
+    tau_acc_s: float = param(3.0, "s", "time constant of the accelerometer low-pass in the "
+                             "almost-inertial frame (inclination correction)")
+    tau_mag_s: float = param(9.0, "s", "time constant of the heading correction")
+    rest_bias: bool = param(True, "", "rest detection and bias estimation at rest")
+    motion_bias: bool = param(True, "", "bias estimation in motion (from the inclination "
+                              "correction)")
+    mag_rejection: bool = param(True, "", "magnetic disturbance detection and rejection")
+    mag_bias_gain_per_s: float = param(0.0, "1/s", "heading-rate bias loop: integral gain "
+                                       "of the heading disagreement into the vertical bias "
+                                       "(0: off)")
+    bias_sigma_init_deg_s: float = param(0.5, "deg/s", "initial bias uncertainty (std)")
+    bias_forgetting_s: float = param(100.0, "s", "time for the bias uncertainty to grow by "
+                                     "0.1 deg/s")
+    bias_clip_deg_s: float = param(2.0, "deg/s", "bound on the bias estimate and its "
+                                   "innovations")
+    bias_sigma_motion_deg_s: float = param(0.1, "deg/s", "bias measurement std in motion")
+    bias_vertical_forgetting: float = param(1e-4, "", "vertical bias in motion: weight "
+                                            "relative to the horizontal components")
+    bias_sigma_rest_deg_s: float = param(0.03, "deg/s", "bias measurement std at rest")
+    rest_min_s: float = param(1.5, "s", "minimum duration of a rest phase")
+    rest_tau_s: float = param(0.5, "s", "low-pass time constant of the rest detection")
+    rest_th_gyro_deg_s: float = param(2.0, "deg/s", "rest threshold on the gyro deviation")
+    rest_th_acc_m_s2: float = param(0.5, "m/s^2", "rest threshold on the accelerometer "
+                                    "deviation")
+    mag_current_tau_s: float = param(0.05, "s", "low-pass of the field's norm and dip")
+    mag_ref_tau_s: float = param(20.0, "s", "time constant of the learned field reference")
+    mag_norm_th: float = param(0.1, "", "relative norm deviation that flags a disturbance")
+    mag_dip_th_deg: float = param(10.0, "deg", "dip deviation that flags a disturbance")
+    mag_new_s: float = param(20.0, "s", "steady new field accepted after this much motion")
+    mag_new_first_s: float = param(5.0, "s", "same, when no reference exists yet")
+    mag_new_min_gyro_deg_s: float = param(20.0, "deg/s", "rate counted as motion for a new "
+                                          "field")
+    mag_min_undisturbed_s: float = param(0.5, "s", "undisturbed time before the field is "
+                                         "used again")
+    mag_max_reject_s: float = param(60.0, "s", "longest full rejection of a disturbed field")
+    mag_reject_factor: float = param(2.0, "", "gain divisor after that; rejection time "
+                                     "recovers this much faster")
+    max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro only")
+
+    def validate(self):
+        for name in ("tau_acc_s", "rest_tau_s", "bias_sigma_init_deg_s", "bias_forgetting_s",
+                     "bias_clip_deg_s", "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
+                     "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
+            self._require(name, getattr(self, name) > 0, "must be > 0")
+        for name in ("tau_mag_s", "mag_bias_gain_per_s", "rest_min_s", "rest_th_gyro_deg_s",
+                     "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s", "mag_norm_th",
+                     "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
+                     "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s"):
+            self._require(name, getattr(self, name) >= 0, "must be >= 0")
+
+
+# ---------------------------------------------------------------- state layout
+def _layout(spec):
+    out, off = {}, 0
+    for name, size in spec:
+        out[name] = off
+        off += size
+    return out, off
+
+
+_S, STATE_SIZE = _layout([
+    ("QG", 4), ("QA", 4), ("DELTA", 1), ("BIAS", 3), ("P", 9),
+    ("ALP", 7), ("RLP", 19), ("BLP", 5), ("RG", 7), ("RG_OUT", 3), ("RA", 7), ("MN", 5),
+    ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
+    ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
+    ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
+    ("MAG_DIS", 1),
+])
+S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
+S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
+S_RA, S_MN, S_REST_T, S_REST = _S["RA"], _S["MN"], _S["REST_T"], _S["REST"]
+S_MAG_REF_NORM, S_MAG_REF_DIP = _S["MAG_REF_NORM"], _S["MAG_REF_DIP"]
+S_MAG_UNDIST_T, S_MAG_REJECT_T = _S["MAG_UNDIST_T"], _S["MAG_REJECT_T"]
+S_CAND_NORM, S_CAND_DIP, S_CAND_T = _S["CAND_NORM"], _S["CAND_DIP"], _S["CAND_T"]
+S_MAG_DIST, S_K_MAG_INIT, S_ACC_RATE = _S["MAG_DIST"], _S["K_MAG_INIT"], _S["ACC_RATE"]
+S_K_MAG_USED, S_MAG_DIS = _S["K_MAG_USED"], _S["MAG_DIS"]
+
+_C, COEF_SIZE = _layout([
+    ("TS", 1), ("ACC_LP", 5), ("REST_LP", 5), ("MAG_CUR_LP", 5), ("K_MAG", 1),
+    ("K_MAG_REF", 1), ("BIAS_P0", 1), ("BIAS_V", 1), ("W_MOTION", 1), ("W_VERTICAL", 1),
+    ("W_REST", 1), ("BIAS_CLIP", 1), ("REST_TH_GYRO2", 1), ("REST_TH_ACC2", 1),
+    ("REST_MIN", 1), ("TAU_ACC", 1), ("TAU_REST", 1), ("TAU_MAG_CUR", 1), ("MAG_NORM_TH", 1),
+    ("MAG_DIP_TH", 1), ("MAG_NEW", 1), ("MAG_NEW_FIRST", 1), ("MAG_NEW_MIN_GYRO", 1),
+    ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
+    ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
+    ("K_MAG_BIAS", 1),
+])
+C_TS, C_ACC_LP, C_REST_LP, C_MAG_CUR_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"], _C["MAG_CUR_LP"]
+C_K_MAG, C_K_MAG_REF, C_BIAS_P0, C_BIAS_V = _C["K_MAG"], _C["K_MAG_REF"], _C["BIAS_P0"], _C["BIAS_V"]
+C_W_MOTION, C_W_VERTICAL, C_W_REST = _C["W_MOTION"], _C["W_VERTICAL"], _C["W_REST"]
+C_BIAS_CLIP, C_REST_TH_GYRO2, C_REST_TH_ACC2 = _C["BIAS_CLIP"], _C["REST_TH_GYRO2"], _C["REST_TH_ACC2"]
+C_REST_MIN, C_TAU_ACC, C_TAU_REST, C_TAU_MAG_CUR = (_C["REST_MIN"], _C["TAU_ACC"], _C["TAU_REST"],
+                                                   _C["TAU_MAG_CUR"])
+C_MAG_NORM_TH, C_MAG_DIP_TH, C_MAG_NEW = _C["MAG_NORM_TH"], _C["MAG_DIP_TH"], _C["MAG_NEW"]
+C_MAG_NEW_FIRST, C_MAG_NEW_MIN_GYRO = _C["MAG_NEW_FIRST"], _C["MAG_NEW_MIN_GYRO"]
+C_MAG_MIN_UNDIST, C_MAG_MAX_REJECT = _C["MAG_MIN_UNDIST"], _C["MAG_MAX_REJECT"]
+C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"], _C["MAX_DT"]
+C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
+C_K_MAG_BIAS = _C["K_MAG_BIAS"]
+
+
+def butter2(tau_s: float, ts_s: float) -> np.ndarray:
+    """Second-order Butterworth low-pass ``[b0, b1, b2, a1, a2]`` (bilinear transform).
+
+    Cutoff ``fc = √2 / (2π τ)`` (``τ`` is the time constant of the non-oscillating part
+    of the step response). A cutoff at or above 0.45·fs gives the identity filter.
+    """
+    fc = math.sqrt(2.0) / (2.0 * math.pi * tau_s) if tau_s > 0 else math.inf
+    if fc * ts_s >= 0.45:
+        return np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+    c = math.tan(math.pi * fc * ts_s)
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    b0 = c * c / d
+    return np.array([b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d])
+
+
+def _gain(tau_s: float, ts_s: float) -> float:
+    """First-order filter gain ``1 - exp(-ts/τ)`` (τ = 0: 1)."""
+    return 1.0 if tau_s <= 0 else 1.0 - math.exp(-ts_s / tau_s)
+
+
+def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
+    """The kernel's coefficient vector for parameters ``p`` and nominal sample time ``ts_s``."""
+    c = np.zeros(COEF_SIZE)
+    d2r = math.pi / 180.0
+    c[C_TS] = ts_s
+    c[C_ACC_LP:C_ACC_LP + 5] = butter2(p.tau_acc_s, ts_s)
+    c[C_REST_LP:C_REST_LP + 5] = butter2(p.rest_tau_s, ts_s)
+    c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, ts_s)
+    c[C_K_MAG] = _gain(p.tau_mag_s, ts_s)
+    c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, ts_s)
+    c[C_BIAS_P0] = (p.bias_sigma_init_deg_s * d2r) ** 2
+    # process noise: the variance grows by (0.1 deg/s)^2 in bias_forgetting_s
+    c[C_BIAS_V] = (0.1 * d2r) ** 2 * ts_s / p.bias_forgetting_s
+    # measurement variance chosen so that the steady-state std is the stated sigma
+    pm = (p.bias_sigma_motion_deg_s * d2r) ** 2
+    c[C_W_MOTION] = pm * pm / c[C_BIAS_V] + pm
+    c[C_W_VERTICAL] = c[C_W_MOTION] / p.bias_vertical_forgetting
+    pr = (p.bias_sigma_rest_deg_s * d2r) ** 2
+    c[C_W_REST] = pr * pr / c[C_BIAS_V] + pr
+    c[C_BIAS_CLIP] = p.bias_clip_deg_s * d2r
+    c[C_REST_TH_GYRO2] = (p.rest_th_gyro_deg_s * d2r) ** 2
+    c[C_REST_TH_ACC2] = p.rest_th_acc_m_s2 ** 2
+    c[C_REST_MIN] = p.rest_min_s
+    c[C_TAU_ACC] = p.tau_acc_s
+    c[C_TAU_REST] = p.rest_tau_s
+    c[C_TAU_MAG_CUR] = p.mag_current_tau_s
+    c[C_MAG_NORM_TH] = p.mag_norm_th
+    c[C_MAG_DIP_TH] = p.mag_dip_th_deg * d2r
+    c[C_MAG_NEW] = p.mag_new_s
+    c[C_MAG_NEW_FIRST] = p.mag_new_first_s
+    c[C_MAG_NEW_MIN_GYRO] = p.mag_new_min_gyro_deg_s * d2r
+    c[C_MAG_MIN_UNDIST] = p.mag_min_undisturbed_s
+    c[C_MAG_MAX_REJECT] = p.mag_max_reject_s
+    c[C_MAG_REJECT_FACTOR] = p.mag_reject_factor
+    c[C_TAU_MAG] = p.tau_mag_s
+    c[C_MAX_DT] = p.max_dt_s
+    c[C_REST_BIAS] = float(p.rest_bias)
+    c[C_MOTION_BIAS] = float(p.motion_bias)
+    c[C_MAG_REJECT] = float(p.mag_rejection)
+    c[C_K_MAG_BIAS] = p.mag_bias_gain_per_s
+    return c
+
+
+def new_state(p: RobustAHRSParams) -> np.ndarray:
+    """A fresh filter state (flat array, layout ``S_*``)."""
+    s = np.zeros(STATE_SIZE)
+    s[S_QG] = 1.0
+    s[S_QA] = 1.0
+    s[S_P:S_P + 9] = np.eye(3).ravel() * (p.bias_sigma_init_deg_s * math.pi / 180.0) ** 2
+    s[S_MAG_DIST] = 1.0
+    s[S_MAG_REJECT_T] = p.mag_max_reject_s
+    s[S_CAND_NORM] = -1.0
+    s[S_K_MAG_INIT] = 1.0
+    return s
+
+
+# ---------------------------------------------------------------- readable reference
+class _LowPass:
+    """Readable twin of the kernel's ``_lp`` on a slice of the flat state."""
+
+    def __init__(self, s, off, n, b, tau, ts):
+        self.s, self.off, self.n, self.b, self.tau, self.ts = s, off, n, b, tau, ts
+
+    def __call__(self, x):
+        s, o, n = self.s, self.off, self.n
+        b0, b1, b2, a1, a2 = self.b
+        z0 = s[o:o + n]           # views into the state
+        z1 = s[o + n:o + 2 * n]
+        if s[o + 2 * n] >= 0.0:   # start-up: running mean
+            s[o + 2 * n] += 1.0
+            z0 += x
+            y = z0 / s[o + 2 * n]
+            if s[o + 2 * n] * self.ts >= self.tau:
+                z0[:] = y * (1.0 - b0)
+                z1[:] = y * (b2 - a2)
+                s[o + 2 * n] = -1.0
+            return y
+        y = b0 * x + z0
+        z0[:] = b1 * x - a1 * y + z1
+        z1[:] = b2 * x - a2 * y
+        return y
+
+
+def _wrap(a):
+    return a - 2 * math.pi if a > math.pi else (a + 2 * math.pi if a < -math.pi else a)
+
+
+class RobustAHRS(Estimator):
+    """Decoupled 9-axis AHRS with rest/motion bias estimation and magnetic rejection (ENU)."""
+
+    name = "robust-ahrs"
+    summary = ("Decoupled AHRS (VQF structure): inertial-frame accelerometer filter, rest and "
+               "motion bias KF, heading-only magnetometer with disturbance rejection")
+    Params = RobustAHRSParams
+    needs = ("gyro", "accel", "mag")
+    state_fields = ("s", "ts", "t_last")
+
+    def reset(self) -> None:
+        self.s = new_state(self.params)  # flat state, layout S_*
+        self.ts = None  # s, nominal sample time of the filter coefficients
+        self.t_last = None  # s, time of the last sample processed by ``run``
+
+    def start(self, ts_s: float) -> None:
+        """Fix the nominal sample time (s) used for the filter coefficients."""
+        if not (ts_s > 0 and math.isfinite(ts_s)):
+            raise InputError(f"sample time must be > 0, got {ts_s!r}", field="ts_s")
+        self.ts = float(ts_s)
+
+    # views of the state
+    @property
+    def q(self) -> np.ndarray:
+        """Current ``q_nb`` (ENU from body)."""
+        d = self.s[S_DELTA]
+        q6 = quat_mul(self.s[S_QA:S_QA + 4], self.s[S_QG:S_QG + 4])
+        return quat_mul(np.array([math.cos(d / 2), 0.0, 0.0, math.sin(d / 2)]), q6)
+
+    @property
+    def bias(self) -> np.ndarray:
+        return self.s[S_BIAS:S_BIAS + 3].copy()
+
+    def update(self, dt_s: float, gyro, acc, mag) -> np.ndarray:
+        """One sample: ``gyro`` rad/s, ``acc`` m/s², ``mag`` any unit (body). Returns ``q_nb``."""
+        if self.ts is None:
+            if not dt_s > 0:
+                raise InputError("call start(ts_s) first or pass dt_s > 0", field="dt_s")
+            self.start(dt_s)
+        p, s, ts = self.params, self.s, self.ts
+        c = coefficients(p, ts)
+        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
+        g = np.asarray(gyro, float)
+        a = np.asarray(acc, float)
+        m = np.asarray(mag, float)
+        clip = c[C_BIAS_CLIP]
+        bias = s[S_BIAS:S_BIAS + 3]  # view
+        # rest detection (gyro)
+        if p.rest_bias or p.mag_rejection:
+            g_lp = _LowPass(s, S_RG, 3, c[C_REST_LP:C_REST_LP + 5], p.rest_tau_s, ts)(g)
+            s[S_RG_OUT:S_RG_OUT + 3] = g_lp
+            dev = g - g_lp
+            if dev @ dev >= c[C_REST_TH_GYRO2] or np.max(np.abs(g_lp)) > clip:
+                s[S_REST_T] = 0.0
+                s[S_REST] = 0.0
+        # strapdown
+        if dt_s > 0.0 and np.any(g != bias):
+            s[S_QG:S_QG + 4] = _normalise(quat_mul(s[S_QG:S_QG + 4],
+                                                   quat_from_rotvec((g - bias) * dt_s)))
+        if dt_s > p.max_dt_s:
+            self.flags["gap"] = True
+            return self.q
+        # accelerometer
+        if a @ a > 0.0:
+            if p.rest_bias:
+                a_lp = _LowPass(s, S_RA, 3, c[C_REST_LP:C_REST_LP + 5], p.rest_tau_s, ts)(a)
+                dev = a - a_lp
+                if dev @ dev >= c[C_REST_TH_ACC2]:
+                    s[S_REST_T] = 0.0
+                    s[S_REST] = 0.0
+                else:
+                    s[S_REST_T] += ts
+                    if s[S_REST_T] >= p.rest_min_s:
+                        s[S_REST] = 1.0
+            acc_lp = _LowPass(s, S_ALP, 3, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(
+                dcm_from_quat(s[S_QG:S_QG + 4]) @ a)
+            f = dcm_from_quat(s[S_QA:S_QA + 4]) @ acc_lp
+            nf = np.linalg.norm(f)
+            if nf > 0.0:
+                f = f / nf
+                cw = math.sqrt(max(0.5 * (f[2] + 1.0), 0.0))
+                corr = (np.array([cw, 0.5 * f[1] / cw, -0.5 * f[0] / cw, 0.0]) if cw > 1e-6
+                        else np.array([0.0, 1.0, 0.0, 0.0]))
+                s[S_QA:S_QA + 4] = _normalise(quat_mul(corr, s[S_QA:S_QA + 4]))
+                s[S_ACC_RATE] = math.acos(min(max(f[2], -1.0), 1.0)) / ts
+            if p.rest_bias or p.motion_bias:
+                R = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
+                rb = (R @ bias)[:2]
+                R_lp = _LowPass(s, S_RLP, 9, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(
+                    R.ravel()).reshape(3, 3)
+                rb_lp = _LowPass(s, S_BLP, 2, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(rb)
+                P = s[S_P:S_P + 9].reshape(3, 3)  # view
+                for i in range(3):
+                    if P[i, i] < c[C_BIAS_P0]:
+                        P[i, i] += c[C_BIAS_V]
+                H = e = w = None
+                if p.rest_bias and s[S_REST] != 0.0:
+                    H, e = np.eye(3), s[S_RG_OUT:S_RG_OUT + 3] - bias
+                    w = np.full(3, c[C_W_REST])
+                elif p.motion_bias and nf > 0.0:
+                    H = R_lp
+                    e = np.array([-f[1] / ts + rb_lp[0], f[0] / ts + rb_lp[1], 0.0]) - R_lp @ bias
+                    w = np.array([c[C_W_MOTION], c[C_W_MOTION], c[C_W_VERTICAL]])
+                if H is not None:
+                    e = np.clip(e, -clip, clip)
+                    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(w))
+                    bias[:] = np.clip(bias + K @ e, -clip, clip)
+                    P -= K @ H @ P
+        else:
+            self.flags["acc_skipped"] = True
+        # magnetometer: heading only
+        if m @ m > 0.0:
+            m6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4])) @ m
+            if p.mag_rejection:
+                self._mag_disturbance(m6, c, ts)
+            dis = _wrap(math.atan2(m6[0], m6[1]) - s[S_DELTA])
+            s[S_MAG_DIS] = dis
+            k = c[C_K_MAG]
+            if p.mag_rejection:
+                if s[S_MAG_DIST] != 0.0:
+                    if s[S_MAG_REJECT_T] <= p.mag_max_reject_s:
+                        s[S_MAG_REJECT_T] += ts
+                        k = 0.0
+                    else:
+                        k /= p.mag_reject_factor
+                else:
+                    s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * ts, 0.0)
+            ki = s[S_K_MAG_INIT]
+            if ki != 0.0:  # running mean at start: gain at least 1/k
+                k = max(k, ki)
+                ki = ki / (ki + 1.0)
+                s[S_K_MAG_INIT] = 0.0 if ki * p.tau_mag_s < ts else ki
+            s[S_K_MAG_USED] = k
+            s[S_DELTA] = _wrap(s[S_DELTA] + k * dis)
+            if p.mag_bias_gain_per_s > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
+                up_b = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))[2]
+                db = p.mag_bias_gain_per_s * (k / c[C_K_MAG]) * dis * ts
+                bias[:] = np.clip(bias - db * up_b, -clip, clip)
+        else:
+            self.flags["mag_skipped"] = True
+        return self.q
+
+    def _mag_disturbance(self, m6, c, ts):
+        """Norm/dip test against the learned reference; new-field acceptance (readable)."""
+        p, s = self.params, self.s
+        nm = float(np.linalg.norm(m6))
+        cur = _LowPass(s, S_MN, 2, c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5], p.mag_current_tau_s, ts)(
+            np.array([nm, -math.asin(min(max(m6[2] / nm, -1.0), 1.0))]))
+        kref = c[C_K_MAG_REF]
+        dip_th = c[C_MAG_DIP_TH]
+        ref_n = s[S_MAG_REF_NORM]
+        if abs(cur[0] - ref_n) < p.mag_norm_th * ref_n and abs(cur[1] - s[S_MAG_REF_DIP]) < dip_th:
+            s[S_MAG_UNDIST_T] += ts
+            if s[S_MAG_UNDIST_T] >= p.mag_min_undisturbed_s:
+                s[S_MAG_DIST] = 0.0
+                s[S_MAG_REF_NORM] += kref * (cur[0] - ref_n)
+                s[S_MAG_REF_DIP] += kref * (cur[1] - s[S_MAG_REF_DIP])
+        else:
+            s[S_MAG_UNDIST_T] = 0.0
+            s[S_MAG_DIST] = 1.0
+        cand_n = s[S_CAND_NORM]
+        if abs(cur[0] - cand_n) < p.mag_norm_th * cand_n and abs(cur[1] - s[S_CAND_DIP]) < dip_th:
+            g_lp = s[S_RG_OUT:S_RG_OUT + 3]
+            if g_lp @ g_lp >= c[C_MAG_NEW_MIN_GYRO] ** 2:
+                s[S_CAND_T] += ts
+            s[S_CAND_NORM] += kref * (cur[0] - cand_n)
+            s[S_CAND_DIP] += kref * (cur[1] - s[S_CAND_DIP])
+            if s[S_MAG_DIST] != 0.0 and (s[S_CAND_T] >= p.mag_new_s or (
+                    s[S_MAG_REF_NORM] == 0.0 and s[S_CAND_T] >= p.mag_new_first_s)):
+                s[S_MAG_REF_NORM] = s[S_CAND_NORM]
+                s[S_MAG_REF_DIP] = s[S_CAND_DIP]
+                s[S_MAG_DIST] = 0.0
+                s[S_MAG_UNDIST_T] = p.mag_min_undisturbed_s
+        else:
+            s[S_CAND_T] = 0.0
+            s[S_CAND_NORM] = cur[0]
+            s[S_CAND_DIP] = cur[1]
+
+    def run(self, rec: Recording) -> Estimate:
+        """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
+        from gnomon.kernels.robust_ahrs import robust_ahrs_batch
+
+        self.check_inputs(rec)
+        n = len(rec)
+        dt = np.empty(n)
+        dt[0] = self.first_dt(rec)
+        dt[1:] = np.diff(rec.t)
+        if self.ts is None:
+            pos = dt[dt > 0]
+            self.start(float(np.median(pos)) if pos.size else 0.01)
+        c = coefficients(self.params, self.ts)
+        out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
+               "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
+               "flags": np.empty(n, np.int64)}
+        robust_ahrs_batch(dt, np.ascontiguousarray(rec.gyro, dtype=float),
+                          np.ascontiguousarray(rec.accel, dtype=float),
+                          np.ascontiguousarray(rec.mag, dtype=float), self.s, c, out["q"],
+                          out["bias"], out["rest"], out["dist"], out["acc_rate"], out["k_mag"],
+                          out["flags"])
+        self.t_last = float(rec.t[-1])
+        f = out["flags"]
+        return Estimate(
+            t=rec.t, q=out["q"], estimator=self.name, params=self.params.as_dict(),
+            frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
+            signals={"bias_rad_s": out["bias"], "rest": out["rest"],
+                     "mag_disturbed": out["dist"], "acc_correction_rad_s": out["acc_rate"],
+                     "mag_gain": out["k_mag"], "acc_skipped": (f & 1) != 0,
+                     "mag_skipped": (f & 2) != 0, "gap": (f & 4) != 0},
+        )
+
+
+def _normalise(q):
+    return q / np.linalg.norm(q)
