@@ -84,6 +84,9 @@ class RobustAHRSParams(Params):
     motion_bias: bool = param(True, "", "bias estimation in motion (from the inclination "
                               "correction)")
     mag_rejection: bool = param(True, "", "magnetic disturbance detection and rejection")
+    heading_kf: bool = param(True, "", "heading gain from a scalar Kalman filter: the "
+                             "heading variance grows while the field is rejected, so the "
+                             "heading recovers fast afterwards (steady gain: tau_mag_s)")
     mag_bias_gain_per_s: float = param(0.0, "1/s", "heading-rate bias loop: integral gain "
                                        "of the heading disagreement into the vertical bias "
                                        "(0: off)")
@@ -121,7 +124,7 @@ class RobustAHRSParams(Params):
                      "bias_clip_deg_s", "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
                      "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
             self._require(name, getattr(self, name) > 0, "must be > 0")
-        for name in ("tau_mag_s", "mag_bias_gain_per_s", "rest_min_s", "rest_th_gyro_deg_s",
+        for name in ("tau_mag_s", "rest_min_s", "rest_th_gyro_deg_s",
                      "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s", "mag_norm_th",
                      "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
                      "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s"):
@@ -143,7 +146,7 @@ _S, STATE_SIZE = _layout([
     ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
     ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
-    ("MAG_DIS", 1),
+    ("MAG_DIS", 1), ("P_HEAD", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
 S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
@@ -152,7 +155,7 @@ S_MAG_REF_NORM, S_MAG_REF_DIP = _S["MAG_REF_NORM"], _S["MAG_REF_DIP"]
 S_MAG_UNDIST_T, S_MAG_REJECT_T = _S["MAG_UNDIST_T"], _S["MAG_REJECT_T"]
 S_CAND_NORM, S_CAND_DIP, S_CAND_T = _S["CAND_NORM"], _S["CAND_DIP"], _S["CAND_T"]
 S_MAG_DIST, S_K_MAG_INIT, S_ACC_RATE = _S["MAG_DIST"], _S["K_MAG_INIT"], _S["ACC_RATE"]
-S_K_MAG_USED, S_MAG_DIS = _S["K_MAG_USED"], _S["MAG_DIS"]
+S_K_MAG_USED, S_MAG_DIS, S_P_HEAD = _S["K_MAG_USED"], _S["MAG_DIS"], _S["P_HEAD"]
 
 _C, COEF_SIZE = _layout([
     ("TS", 1), ("ACC_LP", 5), ("REST_LP", 5), ("MAG_CUR_LP", 5), ("K_MAG", 1),
@@ -162,7 +165,7 @@ _C, COEF_SIZE = _layout([
     ("MAG_DIP_TH", 1), ("MAG_NEW", 1), ("MAG_NEW_FIRST", 1), ("MAG_NEW_MIN_GYRO", 1),
     ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
-    ("K_MAG_BIAS", 1),
+    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP, C_MAG_CUR_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"], _C["MAG_CUR_LP"]
 C_K_MAG, C_K_MAG_REF, C_BIAS_P0, C_BIAS_V = _C["K_MAG"], _C["K_MAG_REF"], _C["BIAS_P0"], _C["BIAS_V"]
@@ -175,7 +178,7 @@ C_MAG_NEW_FIRST, C_MAG_NEW_MIN_GYRO = _C["MAG_NEW_FIRST"], _C["MAG_NEW_MIN_GYRO"
 C_MAG_MIN_UNDIST, C_MAG_MAX_REJECT = _C["MAG_MIN_UNDIST"], _C["MAG_MAX_REJECT"]
 C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"], _C["MAX_DT"]
 C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
-C_K_MAG_BIAS = _C["K_MAG_BIAS"]
+C_K_MAG_BIAS, C_HEADING_KF, C_Q_HEAD = _C["K_MAG_BIAS"], _C["HEADING_KF"], _C["Q_HEAD"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -238,6 +241,10 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     c[C_MOTION_BIAS] = float(p.motion_bias)
     c[C_MAG_REJECT] = float(p.mag_rejection)
     c[C_K_MAG_BIAS] = p.mag_bias_gain_per_s
+    c[C_HEADING_KF] = float(p.heading_kf)
+    # heading random walk per sample (measurement variance 1) whose steady-state gain is k_mag
+    k = c[C_K_MAG]
+    c[C_Q_HEAD] = k * k / (1.0 - k) if k < 1.0 else 1e12
     return c
 
 
@@ -251,6 +258,7 @@ def new_state(p: RobustAHRSParams) -> np.ndarray:
     s[S_MAG_REJECT_T] = p.mag_max_reject_s
     s[S_CAND_NORM] = -1.0
     s[S_K_MAG_INIT] = 1.0
+    s[S_P_HEAD] = 1e6
     return s
 
 
@@ -403,18 +411,28 @@ class RobustAHRS(Estimator):
             dis = _wrap(math.atan2(m6[0], m6[1]) - s[S_DELTA])
             s[S_MAG_DIS] = dis
             k = c[C_K_MAG]
+            r_head = 1.0  # heading measurement variance (scaled; only ratios matter)
+            if p.heading_kf:
+                s[S_P_HEAD] += c[C_Q_HEAD]
             if p.mag_rejection:
                 if s[S_MAG_DIST] != 0.0:
                     if s[S_MAG_REJECT_T] <= p.mag_max_reject_s:
                         s[S_MAG_REJECT_T] += ts
                         k = 0.0
+                        r_head = 0.0
                     else:
                         k /= p.mag_reject_factor
+                        r_head = p.mag_reject_factor ** 2
                 else:
                     s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * ts, 0.0)
+            if p.heading_kf and r_head > 0.0:
+                k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
+                s[S_P_HEAD] *= 1.0 - k
             ki = s[S_K_MAG_INIT]
             if ki != 0.0:  # running mean at start: gain at least 1/k
-                k = max(k, ki)
+                if k < ki:
+                    k = ki
+                    s[S_P_HEAD] = ki
                 ki = ki / (ki + 1.0)
                 s[S_K_MAG_INIT] = 0.0 if ki * p.tau_mag_s < ts else ki
             s[S_K_MAG_USED] = k
@@ -422,7 +440,7 @@ class RobustAHRS(Estimator):
             if p.mag_bias_gain_per_s > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
                 up_b = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))[2]
                 db = p.mag_bias_gain_per_s * (k / c[C_K_MAG]) * dis * ts
-                bias[:] = np.clip(bias - db * up_b, -clip, clip)
+                bias[:] = np.clip(bias + db * up_b, -clip, clip)
         else:
             self.flags["mag_skipped"] = True
         return self.q

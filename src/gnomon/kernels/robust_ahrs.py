@@ -19,7 +19,7 @@ from gnomon.estimators.robust_ahrs import (
     C_MAG_NEW_FIRST, C_MAG_NEW_MIN_GYRO, C_MAG_NORM_TH, C_MAG_REJECT_FACTOR, C_MAX_DT,
     C_MOTION_BIAS, C_MAG_REJECT, C_REST_BIAS, C_REST_LP, C_REST_MIN, C_REST_TH_ACC2,
     C_REST_TH_GYRO2, C_TAU_ACC, C_TAU_MAG, C_TAU_MAG_CUR, C_TAU_REST, C_TS, C_W_MOTION,
-    C_W_REST, C_W_VERTICAL, S_ACC_RATE, S_ALP, S_BIAS, S_BLP, S_CAND_DIP, S_CAND_NORM,
+    C_W_REST, C_W_VERTICAL, C_HEADING_KF, C_Q_HEAD, S_P_HEAD, S_ACC_RATE, S_ALP, S_BIAS, S_BLP, S_CAND_DIP, S_CAND_NORM,
     S_CAND_T, S_DELTA, S_K_MAG_INIT, S_K_MAG_USED, S_MAG_DIST, S_MAG_REF_DIP,
     S_MAG_REF_NORM, S_MAG_REJECT_T, S_MAG_UNDIST_T, S_MN, S_P, S_QA, S_QG, S_RA, S_REST,
     S_REST_T, S_RG, S_RG_OUT, S_RLP, S_MAG_DIS,
@@ -363,19 +363,29 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
             dis += 2.0 * math.pi
         s[S_MAG_DIS] = dis
         k = c[C_K_MAG]
+        r_head = 1.0
+        hkf = c[C_HEADING_KF] != 0.0
+        if hkf:
+            s[S_P_HEAD] += c[C_Q_HEAD]
         if reject_on:
             if s[S_MAG_DIST] != 0.0:
                 if s[S_MAG_REJECT_T] <= c[C_MAG_MAX_REJECT]:
                     s[S_MAG_REJECT_T] += ts
                     k = 0.0
+                    r_head = 0.0
                 else:
                     k /= c[C_MAG_REJECT_FACTOR]
+                    r_head = c[C_MAG_REJECT_FACTOR] * c[C_MAG_REJECT_FACTOR]
             else:
                 s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - c[C_MAG_REJECT_FACTOR] * ts, 0.0)
+        if hkf and r_head > 0.0:
+            k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
+            s[S_P_HEAD] *= 1.0 - k
         ki = s[S_K_MAG_INIT]
         if ki != 0.0:
             if k < ki:
                 k = ki
+                s[S_P_HEAD] = ki
             ki = ki / (ki + 1.0)
             if ki * c[C_TAU_MAG] < ts:
                 ki = 0.0
@@ -397,9 +407,9 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
             u1 = 2.0 * (y * z + w * x)
             u2 = 1.0 - 2.0 * (x * x + y * y)
             db = kb * (k / c[C_K_MAG]) * dis * ts
-            s[S_BIAS] = _clip(s[S_BIAS] - db * u0, clip)
-            s[S_BIAS + 1] = _clip(s[S_BIAS + 1] - db * u1, clip)
-            s[S_BIAS + 2] = _clip(s[S_BIAS + 2] - db * u2, clip)
+            s[S_BIAS] = _clip(s[S_BIAS] + db * u0, clip)
+            s[S_BIAS + 1] = _clip(s[S_BIAS + 1] + db * u1, clip)
+            s[S_BIAS + 2] = _clip(s[S_BIAS + 2] + db * u2, clip)
     else:
         flags |= 2
     return flags
