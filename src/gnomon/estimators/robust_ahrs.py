@@ -47,8 +47,9 @@ n = ENU. The estimate is
   that stays steady for ``mag_new_s`` of motion (``mag_new_first_s`` when no
   reference exists yet) becomes the reference.
 
-Filter coefficients use the nominal sample time ``ts`` (the median interval of
-the first recording run, or the first positive ``dt`` of ``update``); the gyro
+Filter coefficients use the nominal sample time ``ts`` (the median of the first
+100 regular intervals of the first recording run, or the first positive ``dt`` of
+``update``, or ``start(ts_s)``); the gyro
 is integrated over the actual intervals. Intervals longer than ``max_dt_s`` are
 gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
 
@@ -77,9 +78,9 @@ __all__ = ["RobustAHRSParams", "RobustAHRS", "coefficients", "butter2", "new_sta
 
 @dataclass(frozen=True)
 class RobustAHRSParams(Params):
-    tau_acc_s: float = param(3.0, "s", "time constant of the accelerometer low-pass in the "
+    tau_acc_s: float = param(2.5, "s", "time constant of the accelerometer low-pass in the "
                              "almost-inertial frame (inclination correction)")
-    tau_mag_s: float = param(9.0, "s", "time constant of the heading correction")
+    tau_mag_s: float = param(30.0, "s", "time constant of the heading correction")
     rest_bias: bool = param(True, "", "rest detection and bias estimation at rest")
     motion_bias: bool = param(True, "", "bias estimation in motion (from the inclination "
                               "correction)")
@@ -87,6 +88,9 @@ class RobustAHRSParams(Params):
     heading_kf: bool = param(True, "", "heading gain from a scalar Kalman filter: the "
                              "heading variance grows while the field is rejected, so the "
                              "heading recovers fast afterwards (steady gain: tau_mag_s)")
+    heading_rate_noise: float = param(0.01, "1/rad", "heading KF: extra heading variance per "
+                                      "rotation angle (gyro scale error / heading "
+                                      "measurement std), so fast motion raises the gain")
     mag_bias_gain_per_s: float = param(0.0, "1/s", "heading-rate bias loop: integral gain "
                                        "of the heading disagreement into the vertical bias "
                                        "(0: off)")
@@ -146,7 +150,7 @@ _S, STATE_SIZE = _layout([
     ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
     ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
-    ("MAG_DIS", 1), ("P_HEAD", 1),
+    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
 S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
@@ -165,7 +169,7 @@ _C, COEF_SIZE = _layout([
     ("MAG_DIP_TH", 1), ("MAG_NEW", 1), ("MAG_NEW_FIRST", 1), ("MAG_NEW_MIN_GYRO", 1),
     ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
-    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1),
+    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP, C_MAG_CUR_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"], _C["MAG_CUR_LP"]
 C_K_MAG, C_K_MAG_REF, C_BIAS_P0, C_BIAS_V = _C["K_MAG"], _C["K_MAG_REF"], _C["BIAS_P0"], _C["BIAS_V"]
@@ -179,6 +183,7 @@ C_MAG_MIN_UNDIST, C_MAG_MAX_REJECT = _C["MAG_MIN_UNDIST"], _C["MAG_MAX_REJECT"]
 C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"], _C["MAX_DT"]
 C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
 C_K_MAG_BIAS, C_HEADING_KF, C_Q_HEAD = _C["K_MAG_BIAS"], _C["HEADING_KF"], _C["Q_HEAD"]
+C_Q_RATE, S_ROT2 = _C["Q_RATE"], _S["ROT2"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -245,6 +250,7 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     # heading random walk per sample (measurement variance 1) whose steady-state gain is k_mag
     k = c[C_K_MAG]
     c[C_Q_HEAD] = k * k / (1.0 - k) if k < 1.0 else 1e12
+    c[C_Q_RATE] = p.heading_rate_noise ** 2
     return c
 
 
@@ -349,6 +355,8 @@ class RobustAHRS(Estimator):
                 s[S_REST_T] = 0.0
                 s[S_REST] = 0.0
         # strapdown
+        if dt_s > 0.0:
+            s[S_ROT2] += float((g - bias) @ (g - bias)) * dt_s * dt_s
         if dt_s > 0.0 and np.any(g != bias):
             s[S_QG:S_QG + 4] = _normalise(quat_mul(s[S_QG:S_QG + 4],
                                                    quat_from_rotvec((g - bias) * dt_s)))
@@ -413,7 +421,8 @@ class RobustAHRS(Estimator):
             k = c[C_K_MAG]
             r_head = 1.0  # heading measurement variance (scaled; only ratios matter)
             if p.heading_kf:
-                s[S_P_HEAD] += c[C_Q_HEAD]
+                s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
+            s[S_ROT2] = 0.0
             if p.mag_rejection:
                 if s[S_MAG_DIST] != 0.0:
                     if s[S_MAG_REJECT_T] <= p.mag_max_reject_s:
@@ -491,7 +500,9 @@ class RobustAHRS(Estimator):
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
         if self.ts is None:
-            pos = dt[dt > 0]
+            # nominal sample time: median of the first (up to) 100 regular intervals, so
+            # that a run split after 100 samples resumes exactly
+            pos = dt[(dt > 0) & (dt <= self.params.max_dt_s)][:100]
             self.start(float(np.median(pos)) if pos.size else 0.01)
         c = coefficients(self.params, self.ts)
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),

@@ -19,7 +19,7 @@ from gnomon.estimators.robust_ahrs import (
     C_MAG_NEW_FIRST, C_MAG_NEW_MIN_GYRO, C_MAG_NORM_TH, C_MAG_REJECT_FACTOR, C_MAX_DT,
     C_MOTION_BIAS, C_MAG_REJECT, C_REST_BIAS, C_REST_LP, C_REST_MIN, C_REST_TH_ACC2,
     C_REST_TH_GYRO2, C_TAU_ACC, C_TAU_MAG, C_TAU_MAG_CUR, C_TAU_REST, C_TS, C_W_MOTION,
-    C_W_REST, C_W_VERTICAL, C_HEADING_KF, C_Q_HEAD, S_P_HEAD, S_ACC_RATE, S_ALP, S_BIAS, S_BLP, S_CAND_DIP, S_CAND_NORM,
+    C_W_REST, C_W_VERTICAL, C_HEADING_KF, C_Q_HEAD, S_P_HEAD, C_Q_RATE, S_ROT2, S_ACC_RATE, S_ALP, S_BIAS, S_BLP, S_CAND_DIP, S_CAND_NORM,
     S_CAND_T, S_DELTA, S_K_MAG_INIT, S_K_MAG_USED, S_MAG_DIST, S_MAG_REF_DIP,
     S_MAG_REF_NORM, S_MAG_REJECT_T, S_MAG_UNDIST_T, S_MN, S_P, S_QA, S_QG, S_RA, S_REST,
     S_REST_T, S_RG, S_RG_OUT, S_RLP, S_MAG_DIS,
@@ -209,6 +209,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         wy = (gy - s[S_BIAS + 1]) * dt
         wz = (gz - s[S_BIAS + 2]) * dt
         th2 = wx * wx + wy * wy + wz * wz
+        s[S_ROT2] += th2
         if th2 > 0.0:
             th = math.sqrt(th2)
             cw = math.cos(0.5 * th)
@@ -366,7 +367,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         r_head = 1.0
         hkf = c[C_HEADING_KF] != 0.0
         if hkf:
-            s[S_P_HEAD] += c[C_Q_HEAD]
+            s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
+        s[S_ROT2] = 0.0
         if reject_on:
             if s[S_MAG_DIST] != 0.0:
                 if s[S_MAG_REJECT_T] <= c[C_MAG_MAX_REJECT]:
