@@ -171,10 +171,13 @@ _C, COEF_SIZE = _layout([
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
     ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1),
 ])
-C_TS, C_ACC_LP, C_REST_LP, C_MAG_CUR_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"], _C["MAG_CUR_LP"]
-C_K_MAG, C_K_MAG_REF, C_BIAS_P0, C_BIAS_V = _C["K_MAG"], _C["K_MAG_REF"], _C["BIAS_P0"], _C["BIAS_V"]
+C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
+C_MAG_CUR_LP = _C["MAG_CUR_LP"]
+C_K_MAG, C_K_MAG_REF = _C["K_MAG"], _C["K_MAG_REF"]
+C_BIAS_P0, C_BIAS_V = _C["BIAS_P0"], _C["BIAS_V"]
 C_W_MOTION, C_W_VERTICAL, C_W_REST = _C["W_MOTION"], _C["W_VERTICAL"], _C["W_REST"]
-C_BIAS_CLIP, C_REST_TH_GYRO2, C_REST_TH_ACC2 = _C["BIAS_CLIP"], _C["REST_TH_GYRO2"], _C["REST_TH_ACC2"]
+C_BIAS_CLIP = _C["BIAS_CLIP"]
+C_REST_TH_GYRO2, C_REST_TH_ACC2 = _C["REST_TH_GYRO2"], _C["REST_TH_ACC2"]
 C_REST_MIN, C_TAU_ACC, C_TAU_REST, C_TAU_MAG_CUR = (_C["REST_MIN"], _C["TAU_ACC"], _C["TAU_REST"],
                                                    _C["TAU_MAG_CUR"])
 C_MAG_NORM_TH, C_MAG_DIP_TH, C_MAG_NEW = _C["MAG_NORM_TH"], _C["MAG_DIP_TH"], _C["MAG_NEW"]
@@ -198,7 +201,8 @@ def butter2(tau_s: float, ts_s: float) -> np.ndarray:
     c = math.tan(math.pi * fc * ts_s)
     d = c * c + math.sqrt(2.0) * c + 1.0
     b0 = c * c / d
-    return np.array([b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d])
+    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
+    return np.array([b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, a2])
 
 
 def _gain(tau_s: float, ts_s: float) -> float:
