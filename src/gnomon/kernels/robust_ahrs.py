@@ -80,7 +80,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
 )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lp(s, off, n, x, out, c, coff, tau, ts):
     """Second-order low-pass of ``x[:n]`` into ``out[:n]``; state ``s[off : off + 2n + 1]``.
 
@@ -115,7 +115,7 @@ def _lp(s, off, n, x, out, c, coff, tau, ts):
         out[i] = y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _qmul_into(s, o, pw, px, py, pz):
     """``s[o:o+4] <- normalise([pw,px,py,pz] ⊗ s[o:o+4])``."""
     w, x, y, z = s[o], s[o + 1], s[o + 2], s[o + 3]
@@ -130,7 +130,7 @@ def _qmul_into(s, o, pw, px, py, pz):
     s[o + 3] = nz * k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _q6(s, q):
     """``q <- q_acc ⊗ q_gyr`` (the inclination-corrected attitude, heading not yet fixed)."""
     pw, px, py, pz = s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3]
@@ -141,7 +141,7 @@ def _q6(s, q):
     q[3] = pw * z + px * y - py * x + pz * w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dcm(q, r):
     """Row-major 3x3 rotation matrix of unit quaternion ``q`` into ``r[:9]``."""
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -156,12 +156,12 @@ def _dcm(q, r):
     r[8] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _clip(v, lim):
     return lim if v > lim else (-lim if v < -lim else v)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
     """Kalman update of the bias with measurement ``e = y - H b`` (``H`` row-major in ``h``).
 
@@ -231,7 +231,7 @@ def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
         s[S_P + i] -= tmp[9 + i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33, tmp, q):
     """One sample, in place on the state ``s``; scratch arrays ``v`` (9), ``r`` (9), ``h`` (9),
     ``k33`` (9), ``tmp`` (18), ``q`` (4). Returns flag bits: 1 accelerometer skipped,
@@ -471,7 +471,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
     return flags
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quat9(s, q):
     """``q <- q_z(δ) ⊗ q_acc ⊗ q_gyr`` (ENU from body)."""
     _q6(s, q)
@@ -484,7 +484,7 @@ def quat9(s, q):
     q[3] = cd * z + sd * w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def robust_ahrs_batch(dt, gyro, acc, mag, s, c, q_out, bias_out, rest_out, dist_out,
                       acc_rate_out, k_mag_out, flags_out):
     """Run N samples (``dt`` (N,) s, sensors (N, 3)) from state ``s`` (updated in place).
