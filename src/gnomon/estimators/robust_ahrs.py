@@ -54,7 +54,8 @@ is integrated over the actual intervals. Intervals longer than ``max_dt_s`` are
 gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
 
 Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
-(bool), ``acc_correction_rad_s`` (inclination correction rate), ``mag_gain``
+(bool), ``acc_correction_rad_s`` (inclination correction rate: sine of the
+correction angle / ts), ``mag_gain``
 (heading gain used, 0 while rejected), ``acc_skipped``, ``mag_skipped``, ``gap``.
 
 The readable per-sample ``update`` is the reference; ``run`` uses the numba
@@ -122,8 +123,11 @@ class RobustAHRSParams(Params):
     mag_reject_factor: float = param(2.0, "", "gain divisor after that; rejection time "
                                      "recovers this much faster")
     max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro only")
+    bias_every: int = param(2, "samples", "the bias Kalman filter (and its low-pass filters) "
+                            "runs on every k-th accelerometer sample (speed; 1: every sample)")
 
     def validate(self):
+        self._require("bias_every", self.bias_every >= 1, "must be >= 1")
         for name in ("tau_acc_s", "rest_tau_s", "bias_sigma_init_deg_s", "bias_forgetting_s",
                      "bias_clip_deg_s", "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
                      "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
@@ -150,7 +154,7 @@ _S, STATE_SIZE = _layout([
     ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
     ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
-    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1),
+    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
 S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
@@ -170,6 +174,7 @@ _C, COEF_SIZE = _layout([
     ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
     ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1),
+    ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
 C_MAG_CUR_LP = _C["MAG_CUR_LP"]
@@ -186,7 +191,8 @@ C_MAG_MIN_UNDIST, C_MAG_MAX_REJECT = _C["MAG_MIN_UNDIST"], _C["MAG_MAX_REJECT"]
 C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"], _C["MAX_DT"]
 C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
 C_K_MAG_BIAS, C_HEADING_KF, C_Q_HEAD = _C["K_MAG_BIAS"], _C["HEADING_KF"], _C["Q_HEAD"]
-C_Q_RATE, S_ROT2 = _C["Q_RATE"], _S["ROT2"]
+C_Q_RATE, S_ROT2, S_BIAS_CNT = _C["Q_RATE"], _S["ROT2"], _S["BIAS_CNT"]
+C_BIAS_LP, C_BIAS_EVERY, C_TS_BIAS = _C["BIAS_LP"], _C["BIAS_EVERY"], _C["TS_BIAS"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -222,7 +228,12 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, ts_s)
     c[C_BIAS_P0] = (p.bias_sigma_init_deg_s * d2r) ** 2
     # process noise: the variance grows by (0.1 deg/s)^2 in bias_forgetting_s
-    c[C_BIAS_V] = (0.1 * d2r) ** 2 * ts_s / p.bias_forgetting_s
+    # the bias filter runs every bias_every samples: its own low-pass and noise per update
+    ts_b = ts_s * p.bias_every
+    c[C_TS_BIAS] = ts_b
+    c[C_BIAS_EVERY] = p.bias_every
+    c[C_BIAS_LP:C_BIAS_LP + 5] = butter2(p.tau_acc_s, ts_b)
+    c[C_BIAS_V] = (0.1 * d2r) ** 2 * ts_b / p.bias_forgetting_s
     # measurement variance chosen so that the steady-state std is the stated sigma
     pm = (p.bias_sigma_motion_deg_s * d2r) ** 2
     c[C_W_MOTION] = pm * pm / c[C_BIAS_V] + pm
@@ -389,13 +400,16 @@ class RobustAHRS(Estimator):
                 corr = (np.array([cw, 0.5 * f[1] / cw, -0.5 * f[0] / cw, 0.0]) if cw > 1e-6
                         else np.array([0.0, 1.0, 0.0, 0.0]))
                 s[S_QA:S_QA + 4] = _normalise(quat_mul(corr, s[S_QA:S_QA + 4]))
-                s[S_ACC_RATE] = math.acos(min(max(f[2], -1.0), 1.0)) / ts
-            if p.rest_bias or p.motion_bias:
+                s[S_ACC_RATE] = math.hypot(f[0], f[1]) / ts  # sin(correction angle) / ts
+            run_bias = s[S_BIAS_CNT] == 0.0
+            s[S_BIAS_CNT] = (s[S_BIAS_CNT] + 1.0) % p.bias_every
+            if (p.rest_bias or p.motion_bias) and run_bias:
+                ts_b = c[C_TS_BIAS]
                 R = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
                 rb = (R @ bias)[:2]
-                R_lp = _LowPass(s, S_RLP, 9, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(
+                R_lp = _LowPass(s, S_RLP, 9, c[C_BIAS_LP:C_BIAS_LP + 5], p.tau_acc_s, ts_b)(
                     R.ravel()).reshape(3, 3)
-                rb_lp = _LowPass(s, S_BLP, 2, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(rb)
+                rb_lp = _LowPass(s, S_BLP, 2, c[C_BIAS_LP:C_BIAS_LP + 5], p.tau_acc_s, ts_b)(rb)
                 P = s[S_P:S_P + 9].reshape(3, 3)  # view
                 for i in range(3):
                     if P[i, i] < c[C_BIAS_P0]:
@@ -512,9 +526,10 @@ class RobustAHRS(Estimator):
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
                "flags": np.empty(n, np.int64)}
-        robust_ahrs_batch(dt, np.ascontiguousarray(rec.gyro, dtype=float),
-                          np.ascontiguousarray(rec.accel, dtype=float),
-                          np.ascontiguousarray(rec.mag, dtype=float), self.s, c, out["q"],
+        # strided views are fine for the kernel (no copy)
+        robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
+                          np.asarray(rec.accel, dtype=float),
+                          np.asarray(rec.mag, dtype=float), self.s, c, out["q"],
                           out["bias"], out["rest"], out["dist"], out["acc_rate"], out["k_mag"],
                           out["flags"])
         self.t_last = float(rec.t[-1])

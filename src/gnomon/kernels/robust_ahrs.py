@@ -16,6 +16,8 @@ from numba import njit
 from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_ACC_LP,
     C_BIAS_CLIP,
+    C_BIAS_EVERY,
+    C_BIAS_LP,
     C_BIAS_P0,
     C_BIAS_V,
     C_HEADING_KF,
@@ -46,12 +48,14 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_TAU_MAG_CUR,
     C_TAU_REST,
     C_TS,
+    C_TS_BIAS,
     C_W_MOTION,
     C_W_REST,
     C_W_VERTICAL,
     S_ACC_RATE,
     S_ALP,
     S_BIAS,
+    S_BIAS_CNT,
     S_BLP,
     S_CAND_DIP,
     S_CAND_NORM,
@@ -80,7 +84,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
 )
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _lp(s, off, n, x, out, c, coff, tau, ts):
     """Second-order low-pass of ``x[:n]`` into ``out[:n]``; state ``s[off : off + 2n + 1]``.
 
@@ -115,7 +119,7 @@ def _lp(s, off, n, x, out, c, coff, tau, ts):
         out[i] = y
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _qmul_into(s, o, pw, px, py, pz):
     """``s[o:o+4] <- normalise([pw,px,py,pz] ⊗ s[o:o+4])``."""
     w, x, y, z = s[o], s[o + 1], s[o + 2], s[o + 3]
@@ -130,18 +134,31 @@ def _qmul_into(s, o, pw, px, py, pz):
     s[o + 3] = nz * k
 
 
-@njit(cache=True, error_model="numpy")
-def _q6(s, q):
-    """``q <- q_acc ⊗ q_gyr`` (the inclination-corrected attitude, heading not yet fixed)."""
+@njit(cache=True, error_model="numpy", inline="always")
+def _q6_dcm(s, d6):
+    """``d6[0:4] <- q_6b = q_acc ⊗ q_gyr``, ``d6[4:13] <- R_6b`` (row-major)."""
     pw, px, py, pz = s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3]
     w, x, y, z = s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
-    q[0] = pw * w - px * x - py * y - pz * z
-    q[1] = pw * x + px * w + py * z - pz * y
-    q[2] = pw * y - px * z + py * w + pz * x
-    q[3] = pw * z + px * y - py * x + pz * w
+    qw = pw * w - px * x - py * y - pz * z
+    qx = pw * x + px * w + py * z - pz * y
+    qy = pw * y - px * z + py * w + pz * x
+    qz = pw * z + px * y - py * x + pz * w
+    d6[0] = qw
+    d6[1] = qx
+    d6[2] = qy
+    d6[3] = qz
+    d6[4] = 1.0 - 2.0 * (qy * qy + qz * qz)
+    d6[5] = 2.0 * (qx * qy - qw * qz)
+    d6[6] = 2.0 * (qx * qz + qw * qy)
+    d6[7] = 2.0 * (qx * qy + qw * qz)
+    d6[8] = 1.0 - 2.0 * (qx * qx + qz * qz)
+    d6[9] = 2.0 * (qy * qz - qw * qx)
+    d6[10] = 2.0 * (qx * qz - qw * qy)
+    d6[11] = 2.0 * (qy * qz + qw * qx)
+    d6[12] = 1.0 - 2.0 * (qx * qx + qy * qy)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _dcm(q, r):
     """Row-major 3x3 rotation matrix of unit quaternion ``q`` into ``r[:9]``."""
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -156,12 +173,12 @@ def _dcm(q, r):
     r[8] = 1.0 - 2.0 * (x * x + y * y)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _clip(v, lim):
     return lim if v > lim else (-lim if v < -lim else v)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
     """Kalman update of the bias with measurement ``e = y - H b`` (``H`` row-major in ``h``).
 
@@ -214,28 +231,22 @@ def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
     for i in range(3):
         v = s[S_BIAS + i] + k33[3 * i] * e0 + k33[3 * i + 1] * e1 + k33[3 * i + 2] * e2
         s[S_BIAS + i] = _clip(v, clip)
-    # KH (3x3) into tmp[0:9], then P -= KH P (via tmp[9:18])
+    # P -= K H P = K (P Hᵀ)ᵀ (P symmetric); P Hᵀ is still in tmp[0:9]
     for i in range(3):
         for j in range(3):
             acc = 0.0
             for k in range(3):
-                acc += k33[3 * i + k] * h[3 * k + j]
-            tmp[3 * i + j] = acc
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += tmp[3 * i + k] * s[S_P + 3 * k + j]
+                acc += k33[3 * i + k] * tmp[3 * j + k]
             tmp[9 + 3 * i + j] = acc
     for i in range(9):
         s[S_P + i] -= tmp[9 + i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33, tmp, q):
     """One sample, in place on the state ``s``; scratch arrays ``v`` (9), ``r`` (9), ``h`` (9),
-    ``k33`` (9), ``tmp`` (18), ``q`` (4). Returns flag bits: 1 accelerometer skipped,
-    2 magnetometer skipped, 4 gap."""
+    ``k33`` (9), ``tmp`` (18), ``q`` (13: on return ``q_6b`` and ``R_6b``, see ``_q6_dcm``).
+    Returns flag bits: 1 accelerometer skipped, 2 magnetometer skipped, 4 gap."""
     ts = c[C_TS]
     flags = 0
     rest_on = c[C_REST_BIAS] != 0.0
@@ -265,9 +276,17 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         th2 = wx * wx + wy * wy + wz * wz
         s[S_ROT2] += th2
         if th2 > 0.0:
-            th = math.sqrt(th2)
-            cw = math.cos(0.5 * th)
-            k = math.sin(0.5 * th) / th
+            if th2 < 0.0025:
+                # |θ| < 0.05 rad: Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸ (first
+                # omitted terms < 1e-22: equal to the trigonometric form in double precision)
+                cw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (
+                    1.0 / 46080.0 - th2 / 10321920.0)))
+                k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (
+                    1.0 / 645120.0 - th2 / 185794560.0)))
+            else:
+                th = math.sqrt(th2)
+                cw = math.cos(0.5 * th)
+                k = math.sin(0.5 * th) / th
             # q_gyr <- q_gyr ⊗ exp(w dt): right multiplication
             w, x, y, z = s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
             px, py, pz = k * wx, k * wy, k * wz
@@ -281,6 +300,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
             s[S_QG + 2] = ny * kn
             s[S_QG + 3] = nz * kn
     if dt > c[C_MAX_DT]:
+        _q6_dcm(s, q)
         return 4
     # ---- accelerometer
     na2 = ax * ax + ay * ay + az * az
@@ -328,18 +348,23 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
                 _qmul_into(s, S_QA, cw, 0.5 * fy / cw, -0.5 * fx / cw, 0.0)
             else:
                 _qmul_into(s, S_QA, 0.0, 1.0, 0.0, 0.0)
-            s[S_ACC_RATE] = math.acos(min(max(fz, -1.0), 1.0)) / ts
+            # sine of the correction angle per unit time (= the rate for small corrections)
+            s[S_ACC_RATE] = math.sqrt(fx * fx + fy * fy) / ts
+        _q6_dcm(s, q)
         # ---- gyro bias: Kalman filter in rest (H = I) and in motion (inclination residual)
-        if rest_on or c[C_MOTION_BIAS] != 0.0:
-            _q6(s, q)
-            _dcm(q, h)
+        run_bias = s[S_BIAS_CNT] == 0.0
+        s[S_BIAS_CNT] = (s[S_BIAS_CNT] + 1.0) % c[C_BIAS_EVERY]
+        if (rest_on or c[C_MOTION_BIAS] != 0.0) and run_bias:
+            ts_b = c[C_TS_BIAS]
+            for i in range(9):
+                h[i] = q[4 + i]
             b0, b1, b2 = s[S_BIAS], s[S_BIAS + 1], s[S_BIAS + 2]
             v[0] = h[0] * b0 + h[1] * b1 + h[2] * b2
             v[1] = h[3] * b0 + h[4] * b1 + h[5] * b2
-            _lp(s, S_RLP, 9, h, r, c, C_ACC_LP, c[C_TAU_ACC], ts)
+            _lp(s, S_RLP, 9, h, r, c, C_BIAS_LP, c[C_TAU_ACC], ts_b)
             for i in range(9):
                 h[i] = r[i]
-            _lp(s, S_BLP, 2, v, r, c, C_ACC_LP, c[C_TAU_ACC], ts)
+            _lp(s, S_BLP, 2, v, r, c, C_BIAS_LP, c[C_TAU_ACC], ts_b)
             p0 = c[C_BIAS_P0]
             for i in range(3):
                 if s[S_P + 4 * i] < p0:
@@ -361,17 +386,13 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
                 _bias_update(s, c, h, e0, e1, e2, wm, wm, c[C_W_VERTICAL], clip, k33, tmp)
     else:
         flags |= 1
+        _q6_dcm(s, q)
     # ---- magnetometer: heading only
     nm2 = mx * mx + my * my + mz * mz
     if nm2 > 0.0:
-        _q6(s, q)
-        w, x, y, z = q[0], q[1], q[2], q[3]
-        ex = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
-            + 2.0 * (x * z + w * y) * mz
-        ey = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
-            + 2.0 * (y * z - w * x) * mz
-        ez = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
-            + (1.0 - 2.0 * (x * x + y * y)) * mz
+        ex = q[4] * mx + q[5] * my + q[6] * mz
+        ey = q[7] * mx + q[8] * my + q[9] * mz
+        ez = q[10] * mx + q[11] * my + q[12] * mz
         if reject_on:
             nm = math.sqrt(ex * ex + ey * ey + ez * ez)
             v[0] = nm
@@ -457,11 +478,9 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         kb = c[C_K_MAG_BIAS]
         if kb > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
             # vertical of the navigation frame in body coordinates: third row of R_6b
-            _q6(s, q)
-            w, x, y, z = q[0], q[1], q[2], q[3]
-            u0 = 2.0 * (x * z - w * y)
-            u1 = 2.0 * (y * z + w * x)
-            u2 = 1.0 - 2.0 * (x * x + y * y)
+            u0 = q[10]
+            u1 = q[11]
+            u2 = q[12]
             db = kb * (k / c[C_K_MAG]) * dis * ts
             s[S_BIAS] = _clip(s[S_BIAS] + db * u0, clip)
             s[S_BIAS + 1] = _clip(s[S_BIAS + 1] + db * u1, clip)
@@ -471,10 +490,9 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
     return flags
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def quat9(s, q):
-    """``q <- q_z(δ) ⊗ q_acc ⊗ q_gyr`` (ENU from body)."""
-    _q6(s, q)
+    """``q[0:4] <- q_z(δ) ⊗ q[0:4]`` (ENU from body, ``q[0:4]`` holding ``q_6b``)."""
     cd = math.cos(0.5 * s[S_DELTA])
     sd = math.sin(0.5 * s[S_DELTA])
     w, x, y, z = q[0], q[1], q[2], q[3]
@@ -497,7 +515,7 @@ def robust_ahrs_batch(dt, gyro, acc, mag, s, c, q_out, bias_out, rest_out, dist_
     h = np.empty(9)
     k33 = np.empty(9)
     tmp = np.empty(18)
-    q = np.empty(4)
+    q = np.empty(13)
     for i in range(dt.shape[0]):
         f = robust_ahrs_step(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
                              acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], v, r, h,
