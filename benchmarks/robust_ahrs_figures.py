@@ -120,12 +120,13 @@ def main(data_dir="../shared/data/broad", out_dir="docs/figures") -> dict:
     # ablation: each mechanism off, mean over the 15 trials
     variants = {"default": {}, "mag_rejection off": {"mag_rejection": False},
                 "heading_kf off": {"heading_kf": False},
-                "heading_rate_noise 0": {"heading_rate_noise": 0.0},
+                "heading_rate_noise_s 0": {"heading_rate_noise_s": 0.0},
                 "rest_bias off": {"rest_bias": False}, "motion_bias off": {"motion_bias": False},
                 "tau_acc 0.3 s": {"tau_acc_s": 0.3},
+                "every sample (mag_every = bias_every = 1)": {"mag_every": 1, "bias_every": 1},
                 "VQF parameters (tau_acc 3, tau_mag 9, no heading KF)":
                     {"tau_acc_s": 3.0, "tau_mag_s": 9.0, "heading_kf": False,
-                     "heading_rate_noise": 0.0}}
+                     "heading_rate_noise_s": 0.0, "mag_every": 1, "bias_every": 1}}
     abl = {}
     for name, over in variants.items():
         rows = [score_broad(r, RobustAHRS(**over).run(r).q) for r in recs.values()]

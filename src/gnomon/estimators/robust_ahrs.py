@@ -89,9 +89,10 @@ class RobustAHRSParams(Params):
     heading_kf: bool = param(True, "", "heading gain from a scalar Kalman filter: the "
                              "heading variance grows while the field is rejected, so the "
                              "heading recovers fast afterwards (steady gain: tau_mag_s)")
-    heading_rate_noise: float = param(0.01, "1/rad", "heading KF: extra heading variance per "
-                                      "rotation angle (gyro scale error / heading "
-                                      "measurement std), so fast motion raises the gain")
+    heading_rate_noise_s: float = param(0.3, "s", "heading KF: heading random walk per "
+                                        "rotation, variance rate q_r |w|^2 with q_r = this^2 "
+                                        "(heading variance rate 1 without rotation), so fast "
+                                        "motion raises the gain")
     mag_bias_gain_per_s: float = param(0.0, "1/s", "heading-rate bias loop: integral gain "
                                        "of the heading disagreement into the vertical bias "
                                        "(0: off)")
@@ -123,11 +124,15 @@ class RobustAHRSParams(Params):
     mag_reject_factor: float = param(2.0, "", "gain divisor after that; rejection time "
                                      "recovers this much faster")
     max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro only")
+    mag_every: int = param(4, "samples", "the heading filter and the disturbance detection "
+                           "run on the mean field of every k magnetometer samples (speed; 1: "
+                           "every sample)")
     bias_every: int = param(2, "samples", "the bias Kalman filter (and its low-pass filters) "
                             "runs on every k-th accelerometer sample (speed; 1: every sample)")
 
     def validate(self):
         self._require("bias_every", self.bias_every >= 1, "must be >= 1")
+        self._require("mag_every", self.mag_every >= 1, "must be >= 1")
         for name in ("tau_acc_s", "rest_tau_s", "bias_sigma_init_deg_s", "bias_forgetting_s",
                      "bias_clip_deg_s", "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
                      "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
@@ -154,7 +159,8 @@ _S, STATE_SIZE = _layout([
     ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
     ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
-    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1),
+    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1), ("MAG_CNT", 1), ("MSUM", 3),
+    ("CD", 1), ("SD", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
 S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
@@ -173,8 +179,8 @@ _C, COEF_SIZE = _layout([
     ("MAG_DIP_TH", 1), ("MAG_NEW", 1), ("MAG_NEW_FIRST", 1), ("MAG_NEW_MIN_GYRO", 1),
     ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
-    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1),
-    ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1),
+    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1), ("R_HEAD", 1),
+    ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1), ("MAG_EVERY", 1), ("TS_MAG", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
 C_MAG_CUR_LP = _C["MAG_CUR_LP"]
@@ -192,7 +198,10 @@ C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"
 C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
 C_K_MAG_BIAS, C_HEADING_KF, C_Q_HEAD = _C["K_MAG_BIAS"], _C["HEADING_KF"], _C["Q_HEAD"]
 C_Q_RATE, S_ROT2, S_BIAS_CNT = _C["Q_RATE"], _S["ROT2"], _S["BIAS_CNT"]
+C_R_HEAD = _C["R_HEAD"]
 C_BIAS_LP, C_BIAS_EVERY, C_TS_BIAS = _C["BIAS_LP"], _C["BIAS_EVERY"], _C["TS_BIAS"]
+C_MAG_EVERY, C_TS_MAG, S_MAG_CNT = _C["MAG_EVERY"], _C["TS_MAG"], _S["MAG_CNT"]
+S_CD, S_SD, S_MSUM = _S["CD"], _S["SD"], _S["MSUM"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -223,9 +232,13 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     c[C_TS] = ts_s
     c[C_ACC_LP:C_ACC_LP + 5] = butter2(p.tau_acc_s, ts_s)
     c[C_REST_LP:C_REST_LP + 5] = butter2(p.rest_tau_s, ts_s)
-    c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, ts_s)
-    c[C_K_MAG] = _gain(p.tau_mag_s, ts_s)
-    c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, ts_s)
+    # the heading filter runs every mag_every samples: its gains are for that interval
+    tsm = ts_s * p.mag_every
+    c[C_TS_MAG] = tsm
+    c[C_MAG_EVERY] = p.mag_every
+    c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, tsm)
+    c[C_K_MAG] = _gain(p.tau_mag_s, tsm)
+    c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, tsm)
     c[C_BIAS_P0] = (p.bias_sigma_init_deg_s * d2r) ** 2
     # process noise: the variance grows by (0.1 deg/s)^2 in bias_forgetting_s
     # the bias filter runs every bias_every samples: its own low-pass and noise per update
@@ -262,10 +275,13 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     c[C_MAG_REJECT] = float(p.mag_rejection)
     c[C_K_MAG_BIAS] = p.mag_bias_gain_per_s
     c[C_HEADING_KF] = float(p.heading_kf)
-    # heading random walk per sample (measurement variance 1) whose steady-state gain is k_mag
+    # heading KF in units where the heading variance grows at rate 1 (per s) at rest: the
+    # measurement variance per update is tau_mag² / tsm (steady-state time constant tau_mag),
+    # the random walk per update is chosen so that the steady-state gain is exactly k_mag
     k = c[C_K_MAG]
-    c[C_Q_HEAD] = k * k / (1.0 - k) if k < 1.0 else 1e12
-    c[C_Q_RATE] = p.heading_rate_noise ** 2
+    c[C_R_HEAD] = p.tau_mag_s ** 2 / tsm if p.tau_mag_s > 0 else 1.0
+    c[C_Q_HEAD] = c[C_R_HEAD] * k * k / (1.0 - k) if k < 1.0 else 1e12
+    c[C_Q_RATE] = p.heading_rate_noise_s ** 2
     return c
 
 
@@ -280,6 +296,7 @@ def new_state(p: RobustAHRSParams) -> np.ndarray:
     s[S_CAND_NORM] = -1.0
     s[S_K_MAG_INIT] = 1.0
     s[S_P_HEAD] = 1e6
+    s[S_CD] = 1.0
     return s
 
 
@@ -339,9 +356,8 @@ class RobustAHRS(Estimator):
     @property
     def q(self) -> np.ndarray:
         """Current ``q_nb`` (ENU from body)."""
-        d = self.s[S_DELTA]
         q6 = quat_mul(self.s[S_QA:S_QA + 4], self.s[S_QG:S_QG + 4])
-        return quat_mul(np.array([math.cos(d / 2), 0.0, 0.0, math.sin(d / 2)]), q6)
+        return quat_mul(np.array([self.s[S_CD], 0.0, 0.0, self.s[S_SD]]), q6)
 
     @property
     def bias(self) -> np.ndarray:
@@ -371,7 +387,7 @@ class RobustAHRS(Estimator):
                 s[S_REST] = 0.0
         # strapdown
         if dt_s > 0.0:
-            s[S_ROT2] += float((g - bias) @ (g - bias)) * dt_s * dt_s
+            s[S_ROT2] += float((g - bias) @ (g - bias)) * dt_s  # ∫|ω|² dt
         if dt_s > 0.0 and np.any(g != bias):
             s[S_QG:S_QG + 4] = _normalise(quat_mul(s[S_QG:S_QG + 4],
                                                    quat_from_rotvec((g - bias) * dt_s)))
@@ -430,28 +446,40 @@ class RobustAHRS(Estimator):
         else:
             self.flags["acc_skipped"] = True
         # magnetometer: heading only
+        run_mag = False
         if m @ m > 0.0:
-            m6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4])) @ m
+            # field in frame 6, averaged over mag_every samples (the first sample at once)
+            s[S_MSUM:S_MSUM + 3] += dcm_from_quat(quat_mul(s[S_QA:S_QA + 4],
+                                                           s[S_QG:S_QG + 4])) @ m
+            s[S_MAG_CNT] += 1.0
+            run_mag = s[S_MAG_CNT] >= p.mag_every or s[S_K_MAG_INIT] == 1.0
+        if m @ m > 0.0 and not run_mag:
+            pass  # accumulating: the heading filter runs on every mag_every-th sample
+        elif m @ m > 0.0:
+            tsm = c[C_TS_MAG]
+            m6 = s[S_MSUM:S_MSUM + 3] / s[S_MAG_CNT]
+            s[S_MSUM:S_MSUM + 3] = 0.0
+            s[S_MAG_CNT] = 0.0
             if p.mag_rejection:
-                self._mag_disturbance(m6, c, ts)
+                self._mag_disturbance(m6, c, tsm)
             dis = _wrap(math.atan2(m6[0], m6[1]) - s[S_DELTA])
             s[S_MAG_DIS] = dis
             k = c[C_K_MAG]
-            r_head = 1.0  # heading measurement variance (scaled; only ratios matter)
+            r_head = c[C_R_HEAD]  # heading measurement variance
             if p.heading_kf:
                 s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
             s[S_ROT2] = 0.0
             if p.mag_rejection:
                 if s[S_MAG_DIST] != 0.0:
                     if s[S_MAG_REJECT_T] <= p.mag_max_reject_s:
-                        s[S_MAG_REJECT_T] += ts
+                        s[S_MAG_REJECT_T] += tsm
                         k = 0.0
                         r_head = 0.0
                     else:
                         k /= p.mag_reject_factor
-                        r_head = p.mag_reject_factor ** 2
+                        r_head = c[C_R_HEAD] * p.mag_reject_factor ** 2
                 else:
-                    s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * ts, 0.0)
+                    s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * tsm, 0.0)
             if p.heading_kf and r_head > 0.0:
                 k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
                 s[S_P_HEAD] *= 1.0 - k
@@ -459,14 +487,16 @@ class RobustAHRS(Estimator):
             if ki != 0.0:  # running mean at start: gain at least 1/k
                 if k < ki:
                     k = ki
-                    s[S_P_HEAD] = ki
+                    s[S_P_HEAD] = ki * c[C_R_HEAD]
                 ki = ki / (ki + 1.0)
-                s[S_K_MAG_INIT] = 0.0 if ki * p.tau_mag_s < ts else ki
+                s[S_K_MAG_INIT] = 0.0 if ki * p.tau_mag_s < tsm else ki
             s[S_K_MAG_USED] = k
             s[S_DELTA] = _wrap(s[S_DELTA] + k * dis)
+            s[S_CD] = math.cos(0.5 * s[S_DELTA])
+            s[S_SD] = math.sin(0.5 * s[S_DELTA])
             if p.mag_bias_gain_per_s > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
                 up_b = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))[2]
-                db = p.mag_bias_gain_per_s * (k / c[C_K_MAG]) * dis * ts
+                db = p.mag_bias_gain_per_s * (k / c[C_K_MAG]) * dis * tsm
                 bias[:] = np.clip(bias + db * up_b, -clip, clip)
         else:
             self.flags["mag_skipped"] = True

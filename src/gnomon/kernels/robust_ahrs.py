@@ -26,6 +26,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_K_MAG_REF,
     C_MAG_CUR_LP,
     C_MAG_DIP_TH,
+    C_MAG_EVERY,
     C_MAG_MAX_REJECT,
     C_MAG_MIN_UNDIST,
     C_MAG_NEW,
@@ -38,6 +39,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_MOTION_BIAS,
     C_Q_HEAD,
     C_Q_RATE,
+    C_R_HEAD,
     C_REST_BIAS,
     C_REST_LP,
     C_REST_MIN,
@@ -49,6 +51,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_TAU_REST,
     C_TS,
     C_TS_BIAS,
+    C_TS_MAG,
     C_W_MOTION,
     C_W_REST,
     C_W_VERTICAL,
@@ -60,9 +63,11 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     S_CAND_DIP,
     S_CAND_NORM,
     S_CAND_T,
+    S_CD,
     S_DELTA,
     S_K_MAG_INIT,
     S_K_MAG_USED,
+    S_MAG_CNT,
     S_MAG_DIS,
     S_MAG_DIST,
     S_MAG_REF_DIP,
@@ -70,6 +75,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     S_MAG_REJECT_T,
     S_MAG_UNDIST_T,
     S_MN,
+    S_MSUM,
     S_P,
     S_P_HEAD,
     S_QA,
@@ -81,6 +87,7 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     S_RG_OUT,
     S_RLP,
     S_ROT2,
+    S_SD,
 )
 
 
@@ -274,7 +281,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         wy = (gy - s[S_BIAS + 1]) * dt
         wz = (gz - s[S_BIAS + 2]) * dt
         th2 = wx * wx + wy * wy + wz * wz
-        s[S_ROT2] += th2
+        s[S_ROT2] += th2 / dt
         if th2 > 0.0:
             if th2 < 0.0025:
                 # |θ| < 0.05 rad: Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸ (first
@@ -389,22 +396,38 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         _q6_dcm(s, q)
     # ---- magnetometer: heading only
     nm2 = mx * mx + my * my + mz * mz
+    run_mag = False
     if nm2 > 0.0:
-        ex = q[4] * mx + q[5] * my + q[6] * mz
-        ey = q[7] * mx + q[8] * my + q[9] * mz
-        ez = q[10] * mx + q[11] * my + q[12] * mz
+        # field in frame 6, averaged over mag_every samples (the first sample at once)
+        s[S_MSUM] += q[4] * mx + q[5] * my + q[6] * mz
+        s[S_MSUM + 1] += q[7] * mx + q[8] * my + q[9] * mz
+        s[S_MSUM + 2] += q[10] * mx + q[11] * my + q[12] * mz
+        s[S_MAG_CNT] += 1.0
+        run_mag = s[S_MAG_CNT] >= c[C_MAG_EVERY] or s[S_K_MAG_INIT] == 1.0
+    if nm2 > 0.0 and not run_mag:
+        pass  # accumulating: the heading filter runs on every mag_every-th sample
+    elif nm2 > 0.0:
+        tsm = c[C_TS_MAG]
+        inv = 1.0 / s[S_MAG_CNT]
+        ex = s[S_MSUM] * inv
+        ey = s[S_MSUM + 1] * inv
+        ez = s[S_MSUM + 2] * inv
+        s[S_MSUM] = 0.0
+        s[S_MSUM + 1] = 0.0
+        s[S_MSUM + 2] = 0.0
+        s[S_MAG_CNT] = 0.0
         if reject_on:
             nm = math.sqrt(ex * ex + ey * ey + ez * ez)
             v[0] = nm
             v[1] = -math.asin(min(max(ez / nm, -1.0), 1.0))
-            _lp(s, S_MN, 2, v, r, c, C_MAG_CUR_LP, c[C_TAU_MAG_CUR], ts)
+            _lp(s, S_MN, 2, v, r, c, C_MAG_CUR_LP, c[C_TAU_MAG_CUR], tsm)
             cur_norm = r[0]
             cur_dip = r[1]
             ref_n = s[S_MAG_REF_NORM]
             kref = c[C_K_MAG_REF]
             if abs(cur_norm - ref_n) < c[C_MAG_NORM_TH] * ref_n \
                     and abs(cur_dip - s[S_MAG_REF_DIP]) < c[C_MAG_DIP_TH]:
-                s[S_MAG_UNDIST_T] += ts
+                s[S_MAG_UNDIST_T] += tsm
                 if s[S_MAG_UNDIST_T] >= c[C_MAG_MIN_UNDIST]:
                     s[S_MAG_DIST] = 0.0
                     s[S_MAG_REF_NORM] += kref * (cur_norm - ref_n)
@@ -418,7 +441,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
                     and abs(cur_dip - s[S_CAND_DIP]) < c[C_MAG_DIP_TH]:
                 g0, g1, g2 = s[S_RG_OUT], s[S_RG_OUT + 1], s[S_RG_OUT + 2]
                 if g0 * g0 + g1 * g1 + g2 * g2 >= c[C_MAG_NEW_MIN_GYRO] ** 2:
-                    s[S_CAND_T] += ts
+                    s[S_CAND_T] += tsm
                 s[S_CAND_NORM] += kref * (cur_norm - cand_n)
                 s[S_CAND_DIP] += kref * (cur_dip - s[S_CAND_DIP])
                 if s[S_MAG_DIST] != 0.0 and (
@@ -439,7 +462,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
             dis += 2.0 * math.pi
         s[S_MAG_DIS] = dis
         k = c[C_K_MAG]
-        r_head = 1.0
+        r_head = c[C_R_HEAD]
         hkf = c[C_HEADING_KF] != 0.0
         if hkf:
             s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
@@ -447,14 +470,14 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         if reject_on:
             if s[S_MAG_DIST] != 0.0:
                 if s[S_MAG_REJECT_T] <= c[C_MAG_MAX_REJECT]:
-                    s[S_MAG_REJECT_T] += ts
+                    s[S_MAG_REJECT_T] += tsm
                     k = 0.0
                     r_head = 0.0
                 else:
                     k /= c[C_MAG_REJECT_FACTOR]
-                    r_head = c[C_MAG_REJECT_FACTOR] * c[C_MAG_REJECT_FACTOR]
+                    r_head = c[C_R_HEAD] * c[C_MAG_REJECT_FACTOR] * c[C_MAG_REJECT_FACTOR]
             else:
-                s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - c[C_MAG_REJECT_FACTOR] * ts, 0.0)
+                s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - c[C_MAG_REJECT_FACTOR] * tsm, 0.0)
         if hkf and r_head > 0.0:
             k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
             s[S_P_HEAD] *= 1.0 - k
@@ -462,9 +485,9 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         if ki != 0.0:
             if k < ki:
                 k = ki
-                s[S_P_HEAD] = ki
+                s[S_P_HEAD] = ki * c[C_R_HEAD]
             ki = ki / (ki + 1.0)
-            if ki * c[C_TAU_MAG] < ts:
+            if ki * c[C_TAU_MAG] < tsm:
                 ki = 0.0
             s[S_K_MAG_INIT] = ki
         s[S_K_MAG_USED] = k
@@ -474,6 +497,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         elif d < -math.pi:
             d += 2.0 * math.pi
         s[S_DELTA] = d
+        s[S_CD] = math.cos(0.5 * d)
+        s[S_SD] = math.sin(0.5 * d)
         # heading-rate bias from the magnetometer (integral action about the vertical)
         kb = c[C_K_MAG_BIAS]
         if kb > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
@@ -481,7 +506,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
             u0 = q[10]
             u1 = q[11]
             u2 = q[12]
-            db = kb * (k / c[C_K_MAG]) * dis * ts
+            db = kb * (k / c[C_K_MAG]) * dis * tsm
             s[S_BIAS] = _clip(s[S_BIAS] + db * u0, clip)
             s[S_BIAS + 1] = _clip(s[S_BIAS + 1] + db * u1, clip)
             s[S_BIAS + 2] = _clip(s[S_BIAS + 2] + db * u2, clip)
@@ -493,8 +518,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
 @njit(cache=True, error_model="numpy", inline="always")
 def quat9(s, q):
     """``q[0:4] <- q_z(δ) ⊗ q[0:4]`` (ENU from body, ``q[0:4]`` holding ``q_6b``)."""
-    cd = math.cos(0.5 * s[S_DELTA])
-    sd = math.sin(0.5 * s[S_DELTA])
+    cd = s[S_CD]  # cos(δ/2), sin(δ/2), updated with δ
+    sd = s[S_SD]
     w, x, y, z = q[0], q[1], q[2], q[3]
     q[0] = cd * w - sd * z
     q[1] = cd * x - sd * y
