@@ -33,7 +33,7 @@ def main(data_dir: str = "../shared/data/broad", reps: int = 7) -> dict:
             RobustAHRS().run(r)
         ours.append(n / (time.perf_counter() - t0))
         t0 = time.perf_counter()
-        for r, (g, a, m) in zip(recs, arrays):
+        for r, (g, a, m) in zip(recs, arrays, strict=True):
             vqf.VQF(1.0 / r.sample_rate_hz).updateBatch(g, a, m)
         theirs.append(n / (time.perf_counter() - t0))
     out = {"samples": n, "robust_ahrs_samples_per_s": float(np.median(ours)),

@@ -30,7 +30,7 @@ def main(data_dir="../shared/data/broad", out=None) -> dict:
     vqf = np.array([score_broad(r, run_anchor("vqf", r))["total_deg"] for r in recs])
     res = []
     for vals in itertools.product(*GRID.values()):
-        p = dict(zip(GRID, vals))
+        p = dict(zip(GRID, vals, strict=True))
         res.append((p, np.array([score_broad(r, RobustAHRS(**p).run(r).q)["total_deg"]
                                  for r in recs])))
     idx = np.arange(len(recs))

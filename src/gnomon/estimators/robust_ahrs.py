@@ -127,7 +127,7 @@ class RobustAHRSParams(Params):
     mag_every: int = param(4, "samples", "the heading filter and the disturbance detection "
                            "run on the mean field of every k magnetometer samples (speed; 1: "
                            "every sample)")
-    bias_every: int = param(2, "samples", "the bias Kalman filter (and its low-pass filters) "
+    bias_every: int = param(4, "samples", "the bias Kalman filter (and its low-pass filters) "
                             "runs on every k-th accelerometer sample (speed; 1: every sample)")
 
     def validate(self):
