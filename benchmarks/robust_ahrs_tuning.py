@@ -4,7 +4,8 @@
 
 Trials sorted by name, index 0, 2, 4, ... = tuning half, 1, 3, ... = held-out half.
 Criterion: lowest mean total RMSE on the tuning half among the grid points with no
-tuning trial worse than 1.2x VQF. The other direction (odd -> even) is reported too.
+tuning trial worse than 1.2x VQF. The other direction (odd -> even) is reported too, and
+leave-one-group-out (BROAD groups from trials.json) with the same criterion.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ def main(data_dir="../shared/data/broad", out=None) -> dict:
     from gnomon.benchmark import score_broad
     from gnomon.estimators.robust_ahrs import RobustAHRS
     from gnomon.io import read
-    from gnomon.io.broad import broad_trials
+    from gnomon.io.broad import broad_groups, broad_trials
 
     recs = [read(p, format="broad") for p in broad_trials(data_dir)]
     vqf = np.array([score_broad(r, run_anchor("vqf", r))["total_deg"] for r in recs])
@@ -44,6 +45,21 @@ def main(data_dir="../shared/data/broad", out=None) -> dict:
             "params": p, "tuning_mean_deg": float(t[a].mean()),
             "tuning_vqf_deg": float(vqf[a].mean()), "held_out_mean_deg": float(t[b].mean()),
             "held_out_vqf_deg": float(vqf[b].mean()), "all_mean_deg": float(t.mean())}
+    # leave one group out: choose on the other trials, score the group
+    groups = broad_groups(data_dir)
+    report["leave_one_group_out"] = {}
+    for g in ("rotation", "translation", "tapping", "vibration", "stationary_magnet",
+              "attached_magnet"):
+        hold = np.array([i for i, r in enumerate(recs) if g in groups.get(r.source, [])])
+        if hold.size == 0:
+            continue
+        rest = np.setdiff1d(idx, hold)
+        ok = [(t[rest].mean(), i) for i, (p, t) in enumerate(res)
+              if (t[rest] / vqf[rest]).max() <= 1.2]
+        p, t = res[min(ok)[1]]
+        report["leave_one_group_out"][g] = {
+            "params": p, "held_out_mean_deg": float(t[hold].mean()),
+            "held_out_vqf_deg": float(vqf[hold].mean()), "trials": int(hold.size)}
     if out:
         with open(out, "w") as f:
             json.dump(report, f, indent=1)

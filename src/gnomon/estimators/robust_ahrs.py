@@ -124,6 +124,10 @@ class RobustAHRSParams(Params):
     mag_reject_factor: float = param(2.0, "", "gain divisor after that; rejection time "
                                      "recovers this much faster")
     max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro only")
+    mag_soft_norm: float = param(0.0, "", "soft de-weighting: relative norm deviation that "
+                                 "doubles the heading measurement variance (0: off)")
+    mag_soft_dip_deg: float = param(0.0, "deg", "soft de-weighting: dip deviation that "
+                                    "doubles the heading measurement variance (0: off)")
     mag_every: int = param(4, "samples", "the heading filter and the disturbance detection "
                            "run on the mean field of every k magnetometer samples (speed; 1: "
                            "every sample)")
@@ -139,7 +143,8 @@ class RobustAHRSParams(Params):
             self._require(name, getattr(self, name) > 0, "must be > 0")
         for name in ("tau_mag_s", "rest_min_s", "rest_th_gyro_deg_s",
                      "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s", "mag_norm_th",
-                     "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
+                     "mag_dip_th_deg", "mag_new_s", "mag_new_first_s", "mag_soft_norm",
+                     "mag_soft_dip_deg",
                      "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s"):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
 
@@ -181,6 +186,7 @@ _C, COEF_SIZE = _layout([
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
     ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1), ("R_HEAD", 1),
     ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1), ("MAG_EVERY", 1), ("TS_MAG", 1),
+    ("SOFT_N", 1), ("SOFT_D", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
 C_MAG_CUR_LP = _C["MAG_CUR_LP"]
@@ -202,6 +208,7 @@ C_R_HEAD = _C["R_HEAD"]
 C_BIAS_LP, C_BIAS_EVERY, C_TS_BIAS = _C["BIAS_LP"], _C["BIAS_EVERY"], _C["TS_BIAS"]
 C_MAG_EVERY, C_TS_MAG, S_MAG_CNT = _C["MAG_EVERY"], _C["TS_MAG"], _S["MAG_CNT"]
 S_CD, S_SD, S_MSUM = _S["CD"], _S["SD"], _S["MSUM"]
+C_SOFT_N, C_SOFT_D = _C["SOFT_N"], _C["SOFT_D"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -236,6 +243,8 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     tsm = ts_s * p.mag_every
     c[C_TS_MAG] = tsm
     c[C_MAG_EVERY] = p.mag_every
+    c[C_SOFT_N] = 1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0
+    c[C_SOFT_D] = 1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0
     c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, tsm)
     c[C_K_MAG] = _gain(p.tau_mag_s, tsm)
     c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, tsm)
@@ -461,7 +470,9 @@ class RobustAHRS(Estimator):
             s[S_MSUM:S_MSUM + 3] = 0.0
             s[S_MAG_CNT] = 0.0
             if p.mag_rejection:
-                self._mag_disturbance(m6, c, tsm)
+                soft = self._mag_disturbance(m6, c, tsm)
+            else:
+                soft = 1.0
             dis = _wrap(math.atan2(m6[0], m6[1]) - s[S_DELTA])
             s[S_MAG_DIS] = dis
             k = c[C_K_MAG]
@@ -480,6 +491,8 @@ class RobustAHRS(Estimator):
                         r_head = c[C_R_HEAD] * p.mag_reject_factor ** 2
                 else:
                     s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * tsm, 0.0)
+            k /= soft  # soft de-weighting by the field's distance from the reference
+            r_head *= soft
             if p.heading_kf and r_head > 0.0:
                 k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
                 s[S_P_HEAD] *= 1.0 - k
@@ -502,8 +515,10 @@ class RobustAHRS(Estimator):
             self.flags["mag_skipped"] = True
         return self.q
 
-    def _mag_disturbance(self, m6, c, ts):
-        """Norm/dip test against the learned reference; new-field acceptance (readable)."""
+    def _mag_disturbance(self, m6, c, ts) -> float:
+        """Norm/dip test against the learned reference; new-field acceptance (readable).
+
+        Returns the soft de-weighting factor ``1 + (Δnorm/norm/σ_n)² + (Δdip/σ_d)²``."""
         p, s = self.params, self.s
         nm = float(np.linalg.norm(m6))
         cur = _LowPass(s, S_MN, 2, c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5], p.mag_current_tau_s, ts)(
@@ -537,6 +552,11 @@ class RobustAHRS(Estimator):
             s[S_CAND_T] = 0.0
             s[S_CAND_NORM] = cur[0]
             s[S_CAND_DIP] = cur[1]
+        if s[S_MAG_REF_NORM] > 0.0:
+            dn = (cur[0] - s[S_MAG_REF_NORM]) / s[S_MAG_REF_NORM]
+            dd = cur[1] - s[S_MAG_REF_DIP]
+            return 1.0 + c[C_SOFT_N] * dn * dn + c[C_SOFT_D] * dd * dd
+        return 1.0
 
     def run(self, rec: Recording) -> Estimate:
         """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""

@@ -45,6 +45,8 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_REST_MIN,
     C_REST_TH_ACC2,
     C_REST_TH_GYRO2,
+    C_SOFT_D,
+    C_SOFT_N,
     C_TAU_ACC,
     C_TAU_MAG,
     C_TAU_MAG_CUR,
@@ -408,6 +410,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         pass  # accumulating: the heading filter runs on every mag_every-th sample
     elif nm2 > 0.0:
         tsm = c[C_TS_MAG]
+        soft = 1.0
         inv = 1.0 / s[S_MAG_CNT]
         ex = s[S_MSUM] * inv
         ey = s[S_MSUM + 1] * inv
@@ -455,6 +458,11 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
                 s[S_CAND_T] = 0.0
                 s[S_CAND_NORM] = cur_norm
                 s[S_CAND_DIP] = cur_dip
+            # soft de-weighting: distance of norm and dip from the reference
+            if s[S_MAG_REF_NORM] > 0.0:
+                dn = (cur_norm - s[S_MAG_REF_NORM]) / s[S_MAG_REF_NORM]
+                dd = cur_dip - s[S_MAG_REF_DIP]
+                soft = 1.0 + c[C_SOFT_N] * dn * dn + c[C_SOFT_D] * dd * dd
         dis = math.atan2(ex, ey) - s[S_DELTA]
         if dis > math.pi:
             dis -= 2.0 * math.pi
@@ -478,6 +486,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
                     r_head = c[C_R_HEAD] * c[C_MAG_REJECT_FACTOR] * c[C_MAG_REJECT_FACTOR]
             else:
                 s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - c[C_MAG_REJECT_FACTOR] * tsm, 0.0)
+        k /= soft
+        r_head *= soft
         if hkf and r_head > 0.0:
             k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
             s[S_P_HEAD] *= 1.0 - k
