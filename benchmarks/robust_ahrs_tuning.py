@@ -16,8 +16,9 @@ import sys
 
 import numpy as np
 
-GRID = {"tau_mag_s": [12.0, 15.0, 20.0, 30.0], "heading_rate_noise_s": [0.0, 0.15, 0.3, 0.6],
-        "tau_acc_s": [2.5, 3.0], "bias_sigma_motion_deg_s": [0.05, 0.1]}
+GRID = {"tau_mag_s": [12.0, 20.0, 30.0], "heading_rate_noise_s": [0.0, 0.3, 0.6],
+        "tau_acc_s": [2.5, 3.0], "bias_sigma_motion_deg_s": [0.05, 0.1],
+        "hard_iron_tau_s": [0.0, 3.0, 5.0, 10.0], "hard_iron_gate": [0.1, 0.2]}
 
 
 def main(data_dir="../shared/data/broad", out=None) -> dict:

@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gnomon.estimators import robust_ahrs
 from gnomon.estimators.robust_ahrs import RobustAHRS, RobustAHRSParams, butter2
 from gnomon.metrics import broad_errors_rad
 from gnomon.recording import Recording
@@ -15,14 +16,14 @@ FIELD = np.array([0.0, 20.0, -45.0])  # uT, ENU
 DATA = Path(__file__).parent / "data" / "broad"
 
 
-def wobble(n=6000, fs=100.0, bias=(0.0, 0.0, 0.0), seed=0, acc_n=None, mag_n=None):
+def wobble(n=6000, fs=100.0, bias=(0.0, 0.0, 0.0), seed=0, acc_n=None, mag_n=None, amp=0.6):
     """Body turning about changing axes (exact truth by integrating the rate), level start.
 
     ``acc_n`` (n, 3) linear acceleration in ENU added to the specific force; ``mag_n``
     (n, 3) field in ENU (default the constant ``FIELD``)."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) / fs
-    w = 0.6 * np.stack([np.sin(0.31 * t), np.sin(0.23 * t + 1), 0.8 * np.sin(0.17 * t + 2)], 1)
+    w = amp * np.stack([np.sin(0.31 * t), np.sin(0.23 * t + 1), 0.8 * np.sin(0.17 * t + 2)], 1)
     q = np.empty((n, 4))
     q[0] = quat_from_euler([0.1, -0.05, 0.7])
     for i in range(1, n):
@@ -50,7 +51,10 @@ def test_butterworth_matches_scipy():
     np.testing.assert_allclose(butter2(tau, ts), [*b, *a[1:]], rtol=1e-10)
 
 
-@pytest.mark.parametrize("overrides", [{}, {"mag_bias_gain_per_s": 0.003, "heading_kf": False}])
+@pytest.mark.parametrize("overrides", [
+    {}, {"mag_bias_gain_per_s": 0.003, "heading_kf": False},
+    {"hard_iron_tau_s": 5.0, "mag_soft_norm": 0.05, "mag_soft_dip_deg": 5.0, "mag_every": 1,
+     "bias_every": 1}])
 def test_kernel_equals_reference_sample_by_sample(overrides):
     n = 2500
     # a magnetic disturbance in the middle, a rest phase at the start (gyro rate ~0)
@@ -216,3 +220,57 @@ def test_full_broad_targets_vs_vqf(full_broad):
     by = {(r["trial"], r["method"]): r["total_deg"] for r in out["trials"]}
     for trial in {r["trial"] for r in out["trials"]}:
         assert by[trial, "robust-ahrs"] <= 1.5 * by[trial, "vqf"], trial
+
+
+def attached_magnet(n=9000, offset_ut=(25.0, -15.0, 30.0), on=slice(3000, 6000), seed=7):
+    """``wobble`` (rates up to 2 rad/s) with a magnet fixed to the sensor during ``on``: a
+    constant body-frame offset (hard iron) added to the magnetometer."""
+    rec = wobble(n=n, seed=seed, amp=2.0)
+    rec.mag[on] += np.asarray(offset_ut)
+    return rec
+
+
+def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
+    rec = attached_magnet()
+    offset = np.array([25.0, -15.0, 30.0])
+    # nearly unregularised least squares recovers the offset; the default prior shrinks it
+    sharp = RobustAHRS(hard_iron_tau_s=5.0, hard_iron_reg=0.002)
+    sharp.run(rec.slice(0, 5500))  # 25 s into the attached-magnet stretch
+    np.testing.assert_allclose(sharp.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], offset,
+                               atol=1.0)  # uT
+    p = RobustAHRSParams(hard_iron_tau_s=5.0)
+    f = RobustAHRS(p)
+    f.run(rec.slice(0, 5500))
+    o = f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3]
+    assert np.linalg.norm(o - offset) < 0.15 * np.linalg.norm(offset)
+    f.run(rec.slice(5500, 9000))  # magnet removed: the offset is dropped again
+    np.testing.assert_allclose(f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], 0.0, atol=1e-12)
+    # with the offset removed the field is accepted again (not flagged) and the heading stays
+    # close; without it the whole stretch is rejected
+    est = {tau: RobustAHRS(hard_iron_tau_s=tau).run(rec) for tau in (5.0, 0.0)}
+    window = slice(4000, 6000)  # 10-30 s after the magnet was attached
+    assert est[0.0].signals["mag_disturbed"][window].mean() > 0.9
+    assert est[5.0].signals["mag_disturbed"][window].mean() < 0.1
+    head = deg(np.abs(broad_errors_rad(rec.q_true, est[5.0].q)["heading"][window]))
+    assert head.max() < 3.0, head.max()
+    # a field that changes in space (not with the sensor) is not explained by an offset
+    h = np.tile(FIELD, (9000, 1))
+    h[3000:6000] += np.outer(np.sin(np.arange(3000) / 150.0), [20.0, 10.0, -15.0])
+    rec2 = wobble(n=9000, mag_n=h, seed=7)
+    f2 = RobustAHRS(p)
+    f2.run(rec2)
+    assert not np.any(f2.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3])
+
+
+def test_hard_iron_kernel_equals_reference():
+    rec = attached_magnet(n=4000, on=slice(1000, 3000))
+    params = RobustAHRSParams(hard_iron_tau_s=3.0)
+    run = RobustAHRS(params)
+    est = run.run(rec)
+    ref = RobustAHRS(params)
+    ref.start(run.ts)
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    q_ref = np.array([ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i])
+                      for i in range(len(rec))])
+    assert np.any(run.s[robust_ahrs.S_HI_W] > 0)
+    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-10)

@@ -128,6 +128,12 @@ class RobustAHRSParams(Params):
                                  "doubles the heading measurement variance (0: off)")
     mag_soft_dip_deg: float = param(0.0, "deg", "soft de-weighting: dip deviation that "
                                     "doubles the heading measurement variance (0: off)")
+    hard_iron_tau_s: float = param(3.0, "s", "online hard-iron offset estimation: time "
+                                   "constant of its weighted window (0: off)")
+    hard_iron_reg: float = param(0.05, "", "hard-iron prior weight (relative): offsets are "
+                                 "only estimated where the rotation makes them observable")
+    hard_iron_gate: float = param(0.2, "", "the offset is used only when it leaves less than "
+                                  "this fraction of the field's variation in frame 6")
     mag_every: int = param(4, "samples", "the heading filter and the disturbance detection "
                            "run on the mean field of every k magnetometer samples (speed; 1: "
                            "every sample)")
@@ -165,6 +171,7 @@ _S, STATE_SIZE = _layout([
     ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
     ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1), ("MAG_CNT", 1), ("MSUM", 3),
+    ("HI_W", 1), ("HI_S", 9), ("HI_RM", 3), ("HI_M", 3), ("HI_O", 3), ("HI_MM", 1),
     ("CD", 1), ("SD", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
@@ -186,7 +193,7 @@ _C, COEF_SIZE = _layout([
     ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
     ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1), ("R_HEAD", 1),
     ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1), ("MAG_EVERY", 1), ("TS_MAG", 1),
-    ("SOFT_N", 1), ("SOFT_D", 1),
+    ("SOFT_N", 1), ("SOFT_D", 1), ("HI_LAMBDA", 1), ("HI_REG", 1), ("HI_GATE", 1),
 ])
 C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
 C_MAG_CUR_LP = _C["MAG_CUR_LP"]
@@ -209,6 +216,9 @@ C_BIAS_LP, C_BIAS_EVERY, C_TS_BIAS = _C["BIAS_LP"], _C["BIAS_EVERY"], _C["TS_BIA
 C_MAG_EVERY, C_TS_MAG, S_MAG_CNT = _C["MAG_EVERY"], _C["TS_MAG"], _S["MAG_CNT"]
 S_CD, S_SD, S_MSUM = _S["CD"], _S["SD"], _S["MSUM"]
 C_SOFT_N, C_SOFT_D = _C["SOFT_N"], _C["SOFT_D"]
+S_HI_W, S_HI_S, S_HI_RM = _S["HI_W"], _S["HI_S"], _S["HI_RM"]
+S_HI_M, S_HI_O, S_HI_MM = _S["HI_M"], _S["HI_O"], _S["HI_MM"]
+C_HI_LAMBDA, C_HI_REG, C_HI_GATE = _C["HI_LAMBDA"], _C["HI_REG"], _C["HI_GATE"]
 
 
 def butter2(tau_s: float, ts_s: float) -> np.ndarray:
@@ -243,6 +253,9 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     tsm = ts_s * p.mag_every
     c[C_TS_MAG] = tsm
     c[C_MAG_EVERY] = p.mag_every
+    c[C_HI_LAMBDA] = math.exp(-ts_s / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0
+    c[C_HI_REG] = p.hard_iron_reg
+    c[C_HI_GATE] = p.hard_iron_gate
     c[C_SOFT_N] = 1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0
     c[C_SOFT_D] = 1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0
     c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, tsm)
@@ -457,9 +470,17 @@ class RobustAHRS(Estimator):
         # magnetometer: heading only
         run_mag = False
         if m @ m > 0.0:
+            R6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
+            lam = c[C_HI_LAMBDA]
+            if lam > 0.0:  # hard-iron sums (exponentially weighted)
+                s[S_HI_W] = lam * s[S_HI_W] + 1.0
+                s[S_HI_S:S_HI_S + 9] = lam * s[S_HI_S:S_HI_S + 9] + R6.ravel()
+                s[S_HI_RM:S_HI_RM + 3] = lam * s[S_HI_RM:S_HI_RM + 3] + R6 @ m
+                s[S_HI_M:S_HI_M + 3] = lam * s[S_HI_M:S_HI_M + 3] + m
+                s[S_HI_MM] = lam * s[S_HI_MM] + m @ m
+                m = m - s[S_HI_O:S_HI_O + 3]
             # field in frame 6, averaged over mag_every samples (the first sample at once)
-            s[S_MSUM:S_MSUM + 3] += dcm_from_quat(quat_mul(s[S_QA:S_QA + 4],
-                                                           s[S_QG:S_QG + 4])) @ m
+            s[S_MSUM:S_MSUM + 3] += R6 @ m
             s[S_MAG_CNT] += 1.0
             run_mag = s[S_MAG_CNT] >= p.mag_every or s[S_K_MAG_INIT] == 1.0
         if m @ m > 0.0 and not run_mag:
@@ -469,6 +490,8 @@ class RobustAHRS(Estimator):
             m6 = s[S_MSUM:S_MSUM + 3] / s[S_MAG_CNT]
             s[S_MSUM:S_MSUM + 3] = 0.0
             s[S_MAG_CNT] = 0.0
+            if c[C_HI_LAMBDA] > 0.0:
+                s[S_HI_O:S_HI_O + 3] = self._hard_iron(c)
             if p.mag_rejection:
                 soft = self._mag_disturbance(m6, c, tsm)
             else:
@@ -514,6 +537,27 @@ class RobustAHRS(Estimator):
         else:
             self.flags["mag_skipped"] = True
         return self.q
+
+    def _hard_iron(self, c) -> np.ndarray:
+        """Hard-iron offset ``o`` (body) from the weighted sums (readable).
+
+        Least squares of ``R_6b m = h + R_6b o`` over the window (``h`` fixed in frame 6)
+        with the prior ``reg·w·|o|²``: ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m`` with
+        ``S = Σ R``, ``w = Σ 1``. Used only if it leaves less than ``hard_iron_gate`` of the
+        residual energy without an offset (``h`` = the mean of ``R m``); else zero.
+        """
+        s = self.s
+        w = s[S_HI_W]
+        S = s[S_HI_S:S_HI_S + 9].reshape(3, 3)
+        rm, msum, mm = s[S_HI_RM:S_HI_RM + 3], s[S_HI_M:S_HI_M + 3], s[S_HI_MM]
+        A = w * w * (1.0 + c[C_HI_REG]) * np.eye(3) - S.T @ S
+        if np.linalg.det(A) <= 0.0:
+            return s[S_HI_O:S_HI_O + 3].copy()
+        o = np.linalg.solve(A, w * msum - S.T @ rm)
+        h = (rm - S @ o) / w
+        e0 = mm - rm @ rm / w
+        e1 = mm - h @ rm - o @ msum
+        return o if e1 < c[C_HI_GATE] * e0 else np.zeros(3)
 
     def _mag_disturbance(self, m6, c, ts) -> float:
         """Norm/dip test against the learned reference; new-field acceptance (readable).

@@ -21,6 +21,9 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     C_BIAS_P0,
     C_BIAS_V,
     C_HEADING_KF,
+    C_HI_GATE,
+    C_HI_LAMBDA,
+    C_HI_REG,
     C_K_MAG,
     C_K_MAG_BIAS,
     C_K_MAG_REF,
@@ -67,6 +70,12 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     S_CAND_T,
     S_CD,
     S_DELTA,
+    S_HI_M,
+    S_HI_MM,
+    S_HI_O,
+    S_HI_RM,
+    S_HI_S,
+    S_HI_W,
     S_K_MAG_INIT,
     S_K_MAG_USED,
     S_MAG_CNT,
@@ -165,6 +174,55 @@ def _q6_dcm(s, d6):
     d6[10] = 2.0 * (qx * qz - qw * qy)
     d6[11] = 2.0 * (qy * qz + qw * qx)
     d6[12] = 1.0 - 2.0 * (qx * qx + qy * qy)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _hard_iron_solve(s, reg, gate, tmp):
+    """``o = (w²(1+reg) I - SᵀS)⁻¹ (w M - Sᵀ RM)`` into ``s[S_HI_O]`` (least squares of
+    ``R m = h + R o`` over the weighted window with the prior ``reg·w |o|²``)."""
+    w = s[S_HI_W]
+    d = w * w * (1.0 + reg)
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += s[S_HI_S + 3 * k + i] * s[S_HI_S + 3 * k + j]
+            tmp[3 * i + j] = (d if i == j else 0.0) - acc
+    r0 = w * s[S_HI_M] - (s[S_HI_S] * s[S_HI_RM] + s[S_HI_S + 3] * s[S_HI_RM + 1]
+                          + s[S_HI_S + 6] * s[S_HI_RM + 2])
+    r1 = w * s[S_HI_M + 1] - (s[S_HI_S + 1] * s[S_HI_RM] + s[S_HI_S + 4] * s[S_HI_RM + 1]
+                              + s[S_HI_S + 7] * s[S_HI_RM + 2])
+    r2 = w * s[S_HI_M + 2] - (s[S_HI_S + 2] * s[S_HI_RM] + s[S_HI_S + 5] * s[S_HI_RM + 1]
+                              + s[S_HI_S + 8] * s[S_HI_RM + 2])
+    a, b, cc = tmp[0], tmp[1], tmp[2]
+    dd, e, f = tmp[3], tmp[4], tmp[5]
+    g, hh, i_ = tmp[6], tmp[7], tmp[8]
+    c0 = e * i_ - f * hh
+    c1 = -(dd * i_ - f * g)
+    c2 = dd * hh - e * g
+    det = a * c0 + b * c1 + cc * c2
+    if det <= 0.0:
+        return
+    inv = 1.0 / det
+    o0 = (c0 * r0 - (b * i_ - cc * hh) * r1 + (b * f - cc * e) * r2) * inv
+    o1 = (c1 * r0 + (a * i_ - cc * g) * r1 - (a * f - cc * dd) * r2) * inv
+    o2 = (c2 * r0 - (a * hh - b * g) * r1 + (a * e - b * dd) * r2) * inv
+    # residual energy of the fit with the offset (E1) and without it (E0, h = mean of R m)
+    rm0, rm1, rm2 = s[S_HI_RM], s[S_HI_RM + 1], s[S_HI_RM + 2]
+    e0 = s[S_HI_MM] - (rm0 * rm0 + rm1 * rm1 + rm2 * rm2) / w
+    h0 = (rm0 - (s[S_HI_S] * o0 + s[S_HI_S + 1] * o1 + s[S_HI_S + 2] * o2)) / w
+    h1 = (rm1 - (s[S_HI_S + 3] * o0 + s[S_HI_S + 4] * o1 + s[S_HI_S + 5] * o2)) / w
+    h2 = (rm2 - (s[S_HI_S + 6] * o0 + s[S_HI_S + 7] * o1 + s[S_HI_S + 8] * o2)) / w
+    e1 = s[S_HI_MM] - (h0 * rm0 + h1 * rm1 + h2 * rm2) - (o0 * s[S_HI_M] + o1 * s[S_HI_M + 1]
+                                                          + o2 * s[S_HI_M + 2])
+    if e1 < gate * e0:  # the offset explains most of the field's variation in frame 6
+        s[S_HI_O] = o0
+        s[S_HI_O + 1] = o1
+        s[S_HI_O + 2] = o2
+    else:
+        s[S_HI_O] = 0.0
+        s[S_HI_O + 1] = 0.0
+        s[S_HI_O + 2] = 0.0
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -400,6 +458,23 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
     nm2 = mx * mx + my * my + mz * mz
     run_mag = False
     if nm2 > 0.0:
+        lam = c[C_HI_LAMBDA]
+        if lam > 0.0:
+            # hard-iron offset o (body): R m = h + R o with h fixed in frame 6; exponentially
+            # weighted sums of R, R m and m give o in closed form (see _hard_iron_solve)
+            s[S_HI_W] = lam * s[S_HI_W] + 1.0
+            for i in range(9):
+                s[S_HI_S + i] = lam * s[S_HI_S + i] + q[4 + i]
+            s[S_HI_RM] = lam * s[S_HI_RM] + q[4] * mx + q[5] * my + q[6] * mz
+            s[S_HI_RM + 1] = lam * s[S_HI_RM + 1] + q[7] * mx + q[8] * my + q[9] * mz
+            s[S_HI_RM + 2] = lam * s[S_HI_RM + 2] + q[10] * mx + q[11] * my + q[12] * mz
+            s[S_HI_M] = lam * s[S_HI_M] + mx
+            s[S_HI_M + 1] = lam * s[S_HI_M + 1] + my
+            s[S_HI_M + 2] = lam * s[S_HI_M + 2] + mz
+            s[S_HI_MM] = lam * s[S_HI_MM] + nm2
+            mx -= s[S_HI_O]
+            my -= s[S_HI_O + 1]
+            mz -= s[S_HI_O + 2]
         # field in frame 6, averaged over mag_every samples (the first sample at once)
         s[S_MSUM] += q[4] * mx + q[5] * my + q[6] * mz
         s[S_MSUM + 1] += q[7] * mx + q[8] * my + q[9] * mz
@@ -419,6 +494,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
         s[S_MSUM + 1] = 0.0
         s[S_MSUM + 2] = 0.0
         s[S_MAG_CNT] = 0.0
+        if c[C_HI_LAMBDA] > 0.0:
+            _hard_iron_solve(s, c[C_HI_REG], c[C_HI_GATE], tmp)
         if reject_on:
             nm = math.sqrt(ex * ex + ey * ey + ez * ez)
             v[0] = nm
