@@ -172,6 +172,7 @@ _S, STATE_SIZE = _layout([
     ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
     ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1), ("MAG_CNT", 1), ("MSUM", 3),
     ("HI_W", 1), ("HI_S", 9), ("HI_RM", 3), ("HI_M", 3), ("HI_O", 3), ("HI_MM", 1),
+    ("HI_BM", 3), ("HI_BMM", 1),
     ("CD", 1), ("SD", 1),
 ])
 S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
@@ -218,6 +219,7 @@ S_CD, S_SD, S_MSUM = _S["CD"], _S["SD"], _S["MSUM"]
 C_SOFT_N, C_SOFT_D = _C["SOFT_N"], _C["SOFT_D"]
 S_HI_W, S_HI_S, S_HI_RM = _S["HI_W"], _S["HI_S"], _S["HI_RM"]
 S_HI_M, S_HI_O, S_HI_MM = _S["HI_M"], _S["HI_O"], _S["HI_MM"]
+S_HI_BM, S_HI_BMM = _S["HI_BM"], _S["HI_BMM"]
 C_HI_LAMBDA, C_HI_REG, C_HI_GATE = _C["HI_LAMBDA"], _C["HI_REG"], _C["HI_GATE"]
 
 
@@ -253,7 +255,7 @@ def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
     tsm = ts_s * p.mag_every
     c[C_TS_MAG] = tsm
     c[C_MAG_EVERY] = p.mag_every
-    c[C_HI_LAMBDA] = math.exp(-ts_s / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0
+    c[C_HI_LAMBDA] = math.exp(-tsm / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0
     c[C_HI_REG] = p.hard_iron_reg
     c[C_HI_GATE] = p.hard_iron_gate
     c[C_SOFT_N] = 1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0
@@ -471,13 +473,9 @@ class RobustAHRS(Estimator):
         run_mag = False
         if m @ m > 0.0:
             R6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
-            lam = c[C_HI_LAMBDA]
-            if lam > 0.0:  # hard-iron sums (exponentially weighted)
-                s[S_HI_W] = lam * s[S_HI_W] + 1.0
-                s[S_HI_S:S_HI_S + 9] = lam * s[S_HI_S:S_HI_S + 9] + R6.ravel()
-                s[S_HI_RM:S_HI_RM + 3] = lam * s[S_HI_RM:S_HI_RM + 3] + R6 @ m
-                s[S_HI_M:S_HI_M + 3] = lam * s[S_HI_M:S_HI_M + 3] + m
-                s[S_HI_MM] = lam * s[S_HI_MM] + m @ m
+            if c[C_HI_LAMBDA] > 0.0:  # hard-iron block sums of the raw field
+                s[S_HI_BM:S_HI_BM + 3] += m
+                s[S_HI_BMM] += m @ m
                 m = m - s[S_HI_O:S_HI_O + 3]
             # field in frame 6, averaged over mag_every samples (the first sample at once)
             s[S_MSUM:S_MSUM + 3] += R6 @ m
@@ -487,11 +485,21 @@ class RobustAHRS(Estimator):
             pass  # accumulating: the heading filter runs on every mag_every-th sample
         elif m @ m > 0.0:
             tsm = c[C_TS_MAG]
-            m6 = s[S_MSUM:S_MSUM + 3] / s[S_MAG_CNT]
+            cnt = s[S_MAG_CNT]
+            m6 = s[S_MSUM:S_MSUM + 3] / cnt
+            lam = c[C_HI_LAMBDA]
+            if lam > 0.0:  # weighted sums per block, R at the block's end
+                R6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
+                s[S_HI_W] = lam * s[S_HI_W] + cnt
+                s[S_HI_S:S_HI_S + 9] = lam * s[S_HI_S:S_HI_S + 9] + cnt * R6.ravel()
+                s[S_HI_RM:S_HI_RM + 3] = (lam * s[S_HI_RM:S_HI_RM + 3] + s[S_MSUM:S_MSUM + 3]
+                                          + cnt * (R6 @ s[S_HI_O:S_HI_O + 3]))
+                s[S_HI_M:S_HI_M + 3] = lam * s[S_HI_M:S_HI_M + 3] + s[S_HI_BM:S_HI_BM + 3]
+                s[S_HI_MM] = lam * s[S_HI_MM] + s[S_HI_BMM]
+                s[S_HI_BM:S_HI_BM + 4] = 0.0
+                s[S_HI_O:S_HI_O + 3] = self._hard_iron(c)
             s[S_MSUM:S_MSUM + 3] = 0.0
             s[S_MAG_CNT] = 0.0
-            if c[C_HI_LAMBDA] > 0.0:
-                s[S_HI_O:S_HI_O + 3] = self._hard_iron(c)
             if p.mag_rejection:
                 soft = self._mag_disturbance(m6, c, tsm)
             else:

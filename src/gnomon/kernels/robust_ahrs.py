@@ -70,6 +70,8 @@ from gnomon.estimators.robust_ahrs import (  # noqa: I001
     S_CAND_T,
     S_CD,
     S_DELTA,
+    S_HI_BM,
+    S_HI_BMM,
     S_HI_M,
     S_HI_MM,
     S_HI_O,
@@ -458,20 +460,12 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
     nm2 = mx * mx + my * my + mz * mz
     run_mag = False
     if nm2 > 0.0:
-        lam = c[C_HI_LAMBDA]
-        if lam > 0.0:
-            # hard-iron offset o (body): R m = h + R o with h fixed in frame 6; exponentially
-            # weighted sums of R, R m and m give o in closed form (see _hard_iron_solve)
-            s[S_HI_W] = lam * s[S_HI_W] + 1.0
-            for i in range(9):
-                s[S_HI_S + i] = lam * s[S_HI_S + i] + q[4 + i]
-            s[S_HI_RM] = lam * s[S_HI_RM] + q[4] * mx + q[5] * my + q[6] * mz
-            s[S_HI_RM + 1] = lam * s[S_HI_RM + 1] + q[7] * mx + q[8] * my + q[9] * mz
-            s[S_HI_RM + 2] = lam * s[S_HI_RM + 2] + q[10] * mx + q[11] * my + q[12] * mz
-            s[S_HI_M] = lam * s[S_HI_M] + mx
-            s[S_HI_M + 1] = lam * s[S_HI_M + 1] + my
-            s[S_HI_M + 2] = lam * s[S_HI_M + 2] + mz
-            s[S_HI_MM] = lam * s[S_HI_MM] + nm2
+        if c[C_HI_LAMBDA] > 0.0:
+            # hard-iron block sums of the raw field (the weighted sums are updated per block)
+            s[S_HI_BM] += mx
+            s[S_HI_BM + 1] += my
+            s[S_HI_BM + 2] += mz
+            s[S_HI_BMM] += nm2
             mx -= s[S_HI_O]
             my -= s[S_HI_O + 1]
             mz -= s[S_HI_O + 2]
@@ -486,16 +480,35 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33,
     elif nm2 > 0.0:
         tsm = c[C_TS_MAG]
         soft = 1.0
-        inv = 1.0 / s[S_MAG_CNT]
+        cnt = s[S_MAG_CNT]
+        inv = 1.0 / cnt
         ex = s[S_MSUM] * inv
         ey = s[S_MSUM + 1] * inv
         ez = s[S_MSUM + 2] * inv
+        lam = c[C_HI_LAMBDA]
+        if lam > 0.0:
+            # hard-iron offset o (body): R m = h + R o with h fixed in frame 6. Exponentially
+            # weighted sums (per block of cnt samples, R taken at the block's end) of 1, R,
+            # R m, m and |m|² give o in closed form (see _hard_iron_solve).
+            o0, o1, o2 = s[S_HI_O], s[S_HI_O + 1], s[S_HI_O + 2]
+            s[S_HI_W] = lam * s[S_HI_W] + cnt
+            for i in range(9):
+                s[S_HI_S + i] = lam * s[S_HI_S + i] + cnt * q[4 + i]
+            s[S_HI_RM] = lam * s[S_HI_RM] + s[S_MSUM] + cnt * (q[4] * o0 + q[5] * o1 + q[6] * o2)
+            s[S_HI_RM + 1] = lam * s[S_HI_RM + 1] + s[S_MSUM + 1] + cnt * (
+                q[7] * o0 + q[8] * o1 + q[9] * o2)
+            s[S_HI_RM + 2] = lam * s[S_HI_RM + 2] + s[S_MSUM + 2] + cnt * (
+                q[10] * o0 + q[11] * o1 + q[12] * o2)
+            for i in range(3):
+                s[S_HI_M + i] = lam * s[S_HI_M + i] + s[S_HI_BM + i]
+                s[S_HI_BM + i] = 0.0
+            s[S_HI_MM] = lam * s[S_HI_MM] + s[S_HI_BMM]
+            s[S_HI_BMM] = 0.0
+            _hard_iron_solve(s, c[C_HI_REG], c[C_HI_GATE], tmp)
         s[S_MSUM] = 0.0
         s[S_MSUM + 1] = 0.0
         s[S_MSUM + 2] = 0.0
         s[S_MAG_CNT] = 0.0
-        if c[C_HI_LAMBDA] > 0.0:
-            _hard_iron_solve(s, c[C_HI_REG], c[C_HI_GATE], tmp)
         if reject_on:
             nm = math.sqrt(ex * ex + ey * ey + ez * ez)
             v[0] = nm
