@@ -251,6 +251,8 @@ def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
     window = slice(4000, 6000)  # 10-30 s after the magnet was attached
     assert est[0.0].signals["mag_disturbed"][window].mean() > 0.9
     assert est[5.0].signals["mag_disturbed"][window].mean() < 0.1
+    np.testing.assert_allclose(est[5.0].signals["hard_iron"][5900], offset, atol=0.15 * 40)
+    assert not est[0.0].signals["hard_iron"].any()
     head = deg(np.abs(broad_errors_rad(rec.q_true, est[5.0].q)["heading"][window]))
     assert head.max() < 3.0, head.max()
     # a field that changes in space (not with the sensor) is not explained by an offset

@@ -1,6 +1,6 @@
 """Robust decoupled AHRS for real IMUs: rest detection, gyro bias estimation in rest and
 motion, inertial-frame accelerometer filtering, heading-only magnetometer correction with
-disturbance rejection and a magnetometer-driven heading-rate bias loop.
+disturbance rejection, a heading Kalman gain and an online hard-iron offset.
 
 The structure follows VQF (Laidig & Seel, "VQF: Highly accurate IMU orientation
 estimation with bias estimation and magnetic disturbance rejection", Information
@@ -34,7 +34,27 @@ n = ENU. The estimate is
   heading disagreement ``atan2(m_E, m_N) - δ``; ``δ`` follows it with a
   first-order filter. The magnetometer never touches the inclination. During
   the first ``tau_mag_s`` seconds the gain is at least ``1/k`` (running mean).
-* **Heading-rate bias loop** (``mag_bias_gain_per_s``, gnomon's addition): the
+* **Heading Kalman gain** (``heading_kf``, ``heading_rate_noise_s``, gnomon's
+  addition): ``δ`` has a scalar variance that grows at rate 1/s plus
+  ``heading_rate_noise_s² |ω|²`` and is reduced by each heading update with
+  measurement variance ``tau_mag_s² / T`` (steady gain = the first-order gain of
+  ``tau_mag_s`` at rest). While the field is rejected the variance grows, so the
+  heading recovers fast afterwards; fast rotation raises the gain too.
+* **Online hard-iron offset** (``hard_iron_tau_s``, gnomon's addition): with a
+  magnet fixed to the sensor, ``R_6b m = h + R_6b o`` with ``h`` fixed in frame 6.
+  Exponentially weighted sums (window ``hard_iron_tau_s``) give the least-squares
+  ``o`` in closed form, ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m`` (``S = Σ R``,
+  prior ``hard_iron_reg``). ``o`` is subtracted from the magnetometer only while
+  it explains the field (residual energy below ``hard_iron_gate`` of the
+  residual without an offset); a field that varies in space is not explained by
+  a body-fixed offset and leaves ``o = 0``.
+* **Soft de-weighting** (``mag_soft_norm``, ``mag_soft_dip_deg``, off): the
+  heading measurement variance grows with the field's norm/dip distance from
+  the reference.
+* **Rates**: the heading filter and disturbance detection run on the mean field
+  (frame 6) of every ``mag_every`` samples, the bias filter on every
+  ``bias_every``-th sample, each with its coefficients for that interval.
+* **Heading-rate bias loop** (``mag_bias_gain_per_s``, gnomon's addition, off): the
   heading disagreement also integrates into the gyro bias along the vertical
   (a PI instead of a P heading loop), so that a vertical bias that the
   accelerometer cannot see does not leave a steady heading lag of ``b·tau_mag``.
@@ -55,7 +75,8 @@ gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
 
 Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
 (bool), ``acc_correction_rad_s`` (inclination correction rate: sine of the
-correction angle / ts), ``mag_gain``
+correction angle / ts), ``hard_iron`` (N, 3) offset in use (magnetometer unit),
+``mag_gain``
 (heading gain used, 0 while rejected), ``acc_skipped``, ``mag_skipped``, ``gap``.
 
 The readable per-sample ``update`` is the reference; ``run`` uses the numba
@@ -627,13 +648,14 @@ class RobustAHRS(Estimator):
         c = coefficients(self.params, self.ts)
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
+               "hi": np.empty((n, 3)),
                "flags": np.empty(n, np.int64)}
         # strided views are fine for the kernel (no copy)
         robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
                           np.asarray(rec.accel, dtype=float),
                           np.asarray(rec.mag, dtype=float), self.s, c, out["q"],
                           out["bias"], out["rest"], out["dist"], out["acc_rate"], out["k_mag"],
-                          out["flags"])
+                          out["hi"], out["flags"])
         self.t_last = float(rec.t[-1])
         f = out["flags"]
         return Estimate(
@@ -641,7 +663,8 @@ class RobustAHRS(Estimator):
             frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
             signals={"bias_rad_s": out["bias"], "rest": out["rest"],
                      "mag_disturbed": out["dist"], "acc_correction_rad_s": out["acc_rate"],
-                     "mag_gain": out["k_mag"], "acc_skipped": (f & 1) != 0,
+                     "mag_gain": out["k_mag"], "hard_iron": out["hi"],
+                     "acc_skipped": (f & 1) != 0,
                      "mag_skipped": (f & 2) != 0, "gap": (f & 4) != 0},
         )
 

@@ -629,11 +629,12 @@ def quat9(s, q):
 
 @njit(cache=True, error_model="numpy")
 def robust_ahrs_batch(dt, gyro, acc, mag, s, c, q_out, bias_out, rest_out, dist_out,
-                      acc_rate_out, k_mag_out, flags_out):
+                      acc_rate_out, k_mag_out, hi_out, flags_out):
     """Run N samples (``dt`` (N,) s, sensors (N, 3)) from state ``s`` (updated in place).
 
     Outputs: ``q_out`` (N, 4) ``q_nb``, ``bias_out`` (N, 3) rad/s, ``rest_out``,
-    ``dist_out`` (N,) bool, ``acc_rate_out``, ``k_mag_out`` (N,), ``flags_out`` (N,) int bits.
+    ``dist_out`` (N,) bool, ``acc_rate_out``, ``k_mag_out`` (N,), ``hi_out`` (N, 3) hard-iron
+    offset in use, ``flags_out`` (N,) int bits.
     """
     v = np.empty(9)
     r = np.empty(9)
@@ -657,5 +658,8 @@ def robust_ahrs_batch(dt, gyro, acc, mag, s, c, q_out, bias_out, rest_out, dist_
         dist_out[i] = s[S_MAG_DIST] != 0.0
         acc_rate_out[i] = s[S_ACC_RATE]
         k_mag_out[i] = s[S_K_MAG_USED]
+        hi_out[i, 0] = s[S_HI_O]
+        hi_out[i, 1] = s[S_HI_O + 1]
+        hi_out[i, 2] = s[S_HI_O + 2]
         flags_out[i] = f
 
