@@ -381,7 +381,8 @@ class RobustAHRS(Estimator):
 
     name = "robust-ahrs"
     summary = ("Decoupled AHRS (VQF structure): inertial-frame accelerometer filter, rest and "
-               "motion bias KF, heading-only magnetometer with disturbance rejection")
+               "motion bias KF, heading-only magnetometer with disturbance rejection, heading "
+               "Kalman gain, online hard-iron offset")
     Params = RobustAHRSParams
     needs = ("gyro", "accel", "mag")
     state_fields = ("s", "ts", "t_last")
