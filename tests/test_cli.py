@@ -133,3 +133,33 @@ def test_reference_libraries_match_published_broad_scores(full_broad):
     published = {"vqf": 2.67, "imufusion": 14.1, "ahrs-madgwick": 5.62}
     for name, value in published.items():
         assert res["mean"][name]["total_deg"] == pytest.approx(value, abs=0.05), name
+
+
+def test_scenarios_and_simulate_write_a_readable_recording(tmp_path, capsys):
+    from gnomon.io import read
+
+    assert main(["scenarios", "--json"]) == 0
+    names = {r["name"] for r in json.loads(capsys.readouterr().out)}
+    assert {"seed000", "seed001"} <= names
+    out = tmp_path / "rec.h5"
+    assert main(["simulate", "seed001", "--out", out, "--set", "duration_s=600",
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    rec = read(out)
+    assert len(rec) == summary["samples"] == 601
+    assert rec.frames["reference"] == "o" and rec.q_true is not None
+    code, _, err = run_cli("simulate", "seed001", "--out", tmp_path / "x.h5",
+                           "--set", "spacecraft.nosuch=1")
+    assert code == 2 and "nosuch" in err and "Traceback" not in err
+
+
+def test_campaign_command_json_and_bad_vary(tmp_path, capsys):
+    assert main(["campaign", "seed001", "--runs", "3", "--out", tmp_path / "c",
+                 "--vary", "duration_s=300", "--filter", "mekf-spacecraft",
+                 "--executor", "serial", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["rows"] == 3 and summary["failed_total"] == 0
+    assert summary["metrics"]["mekf-spacecraft.rms_deg"]["max"] < 1.0
+    code, _, err = run_cli("campaign", "seed001", "--runs", "2", "--out", tmp_path / "d",
+                           "--vary", "spacecraft.nosuch=normal(0,1)")
+    assert code == 2 and "nosuch" in err and "Traceback" not in err

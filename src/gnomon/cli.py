@@ -47,13 +47,18 @@ def print_json(obj) -> None:
     print(json.dumps(_clean(json.loads(json.dumps(obj, default=_json_default))), indent=2))
 
 
-def _params(pairs: list[str]) -> dict:
+def _params(pairs: list[str], option: str = "--param", typed: bool = False) -> dict:
+    """``KEY=VALUE`` strings to a dict; ``typed`` parses values as YAML scalars (1.5, true)."""
     out = {}
     for p in pairs or []:
         if "=" not in p:
-            raise InputError(f"expected KEY=VALUE, got {p!r}", field="--param")
+            raise InputError(f"expected KEY=VALUE, got {p!r}", field=option)
         k, v = p.split("=", 1)
-        out[k.strip()] = v.strip()
+        if typed:
+            import yaml
+
+            v = yaml.safe_load(v)
+        out[k.strip()] = v.strip() if isinstance(v, str) else v
     return out
 
 
@@ -171,6 +176,67 @@ def cmd_benchmark(args) -> int:
     return 0
 
 
+def cmd_scenarios(args) -> int:
+    """``gnomon.scenarios.list_presets()`` and each preset's description."""
+    from gnomon.scenarios import list_presets, load_scenario
+
+    rows = [{"name": n, "description": load_scenario(n).config.get("description", "")}
+            for n in list_presets()]
+    if args.json:
+        print_json(rows)
+    else:
+        for r in rows:
+            print(f"{r['name']}: {' '.join(str(r['description']).split())}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    """``gnomon.io.write(out, gnomon.scenarios.simulate(load_scenario(name), rng_seed))``."""
+    from gnomon.io import write
+    from gnomon.scenarios import load_scenario, simulate
+
+    scenario = load_scenario(args.scenario)
+    if args.set:
+        scenario = scenario.replace(_params(args.set, option="--set", typed=True))
+    rec = simulate(scenario, rng_seed=args.seed)
+    write(args.out, rec)
+    summary = {"scenario": args.scenario, "out": str(args.out), "samples": len(rec),
+               "duration_s": float(rec.t[-1] - rec.t[0]), "frames": rec.frames}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"simulated {args.scenario}: {len(rec)} samples over "
+              f"{summary['duration_s']:.0f} s; wrote {args.out}")
+    return 0
+
+
+def cmd_campaign(args) -> int:
+    """``gnomon.campaign.campaign_cli(scenario, runs, out, vary, ...)`` (``run_campaign``)."""
+    from gnomon.campaign import campaign_cli
+
+    summary = campaign_cli(args.scenario, args.runs, args.out, args.vary or [],
+                           executor=args.executor, scheduler=args.scheduler,
+                           workers=args.workers, resume=args.resume, only=args.only,
+                           root_seed=args.seed, filters=args.filter,
+                           progress=not args.json and sys.stderr.isatty())
+    if args.json:
+        print_json(summary)
+        return 0
+    print(f"campaign {args.scenario}: {summary['rows']} of {summary['runs']} runs in the table "
+          f"({summary['ran']} ran now, {summary['failed_total']} failed), "
+          f"{summary['runs_per_s']:.2f} runs/s")
+    def fmt(v):
+        return "n/a" if v is None else f"{v:.4g}"
+
+    for name, m in (summary.get("metrics") or {}).items():
+        print(f"  {name}: mean {fmt(m['mean'])}, p95 {fmt(m['p95'])}, max {fmt(m['max'])}")
+    if summary["failed_total"] and summary.get("path"):
+        print("  failed runs and their errors: the 'status' and 'error' columns of the table")
+    if summary.get("path"):
+        print(f"  results: {summary['path']}")
+    return 0
+
+
 def cmd_reproduce(args) -> int:
     """``gnomon.reproduce.pNNN.run(out_dir, quick)`` (``all``: ``gnomon.reproduce.run_all``)."""
     from gnomon import reproduce
@@ -248,6 +314,37 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quick", action="store_true", help="200,000 samples, 3 repeats")
     s.add_argument("--json", action="store_true", help="print the JSON result")
     s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("scenarios", help="list the scenario presets")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_scenarios)
+
+    s = sub.add_parser("simulate", help="simulate a scenario into a gnomon HDF5 recording")
+    s.add_argument("scenario", help="preset name (see `gnomon scenarios`) or a YAML file")
+    s.add_argument("--out", required=True, help="recording file to write (.h5)")
+    s.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario value by its dotted key")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("campaign", help="Monte Carlo campaign of a scenario (local or Dask)")
+    s.add_argument("scenario", help="preset name or scenario YAML")
+    s.add_argument("--runs", type=int, required=True, help="number of runs")
+    s.add_argument("--out", help="directory for results.parquet and campaign.json")
+    s.add_argument("--vary", action="append", metavar="KEY=DIST",
+                   help="e.g. spacecraft.inertia_error_pct=normal(0,2), uniform(a,b), "
+                        "choice(a,b), a constant; filter.NAME.PARAM for filter parameters")
+    s.add_argument("--executor", default="local", choices=["local", "dask", "serial"])
+    s.add_argument("--scheduler", help="Dask scheduler address tcp://host:port "
+                                       "(default: start a LocalCluster)")
+    s.add_argument("--workers", type=int, help="worker processes")
+    s.add_argument("--resume", action="store_true", help="run only what is missing in --out")
+    s.add_argument("--only", type=int, metavar="INDEX", help="re-run one run alone")
+    s.add_argument("--seed", type=int, default=0, help="root seed (SeedSequence)")
+    s.add_argument("--filter", action="append", help="filter(s) to run on each simulation")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_campaign)
 
     available = [n for n in PAPERS
                  if importlib.util.find_spec(f"gnomon.reproduce.p{n}") is not None]

@@ -13,7 +13,7 @@ class InputError(ValueError):
 
     def __init__(self, message: str, *, file: str | None = None, field: str | None = None,
                  row: int | None = None):
-        self.message = message
+        self.message = " ".join(str(message).split())  # always one line
         self.file = file
         self.field = field
         self.row = row

@@ -58,14 +58,29 @@ def initial_attitude(acc, mag=None, samples: int = 1) -> np.ndarray:
     """
     k = max(1, int(samples))
     acc = np.asarray(acc, float)
-    ok_a = np.all(np.isfinite(acc), axis=1) & (np.linalg.norm(acc, axis=1) > 0)
-    if not ok_a.any():
+    mag = None if mag is None else np.asarray(mag, float)
+    rows = _first_usable(acc, k)
+    if rows.size == 0:
         return np.array([1.0, 0.0, 0.0, 0.0])
-    a = np.mean(acc[np.flatnonzero(ok_a)[:k]], axis=0)
+    a = np.mean(acc[rows], axis=0)
     m = None
     if mag is not None:
-        mag = np.asarray(mag, float)
-        ok_m = np.all(np.isfinite(mag), axis=1) & (np.linalg.norm(mag, axis=1) > 0)
-        if ok_m.any():
-            m = np.mean(mag[np.flatnonzero(ok_m)[:k]], axis=0)
+        mrows = _first_usable(mag, k)
+        if mrows.size:
+            m = np.mean(mag[mrows], axis=0)
     return attitude_from_acc_mag(a, m)
+
+
+def _first_usable(v: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the first ``k`` rows of ``v`` (N, 3) that are finite and non-zero.
+
+    Looks at a growing prefix, so a long recording costs no more than its start.
+    """
+    stop = max(4 * k, 256)
+    while True:
+        head = v[:stop]
+        ok = np.all(np.isfinite(head), axis=1) & (np.linalg.norm(head, axis=1) > 0)
+        rows = np.flatnonzero(ok)[:k]
+        if rows.size == k or stop >= len(v):
+            return rows
+        stop *= 8

@@ -100,9 +100,9 @@ class Mahony(Estimator):
             return self.q
         # prediction with the gyro over (t[k-1], t[k]], then correction with the vectors at t[k]
         self.q = quat_mul(self.q, quat_from_rotvec((gyro - self.bias) * dt_s))
-        self.q = self.q / np.linalg.norm(self.q)
         if dt_s > p.max_dt_s:
             self.flags["gap"] = True
+            self.q = self.q / np.linalg.norm(self.q)
             return self.q
         a, ok_a = _unit(np.asarray(acc, float))
         m, ok_m = _unit(np.asarray(mag, float))
@@ -138,7 +138,7 @@ class Mahony(Estimator):
         dt[1:] = np.diff(rec.t)
         q_out = np.empty((n, 4))
         b_out = np.empty((n, 3))
-        flags = np.zeros((n, 3), np.bool_)
+        flags = np.empty(n, np.uint8)
         state_q = np.array(self.q, float)
         state_b = np.array(self.bias, float)
         mahony_batch(dt, np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
@@ -149,8 +149,8 @@ class Mahony(Estimator):
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
-            signals={"bias_rad_s": b_out, "acc_skipped": flags[:, 0],
-                     "mag_skipped": flags[:, 1], "gap": flags[:, 2]},
+            signals={"bias_rad_s": b_out, "acc_skipped": (flags & 1) != 0,
+                     "mag_skipped": (flags & 2) != 0, "gap": (flags & 4) != 0},
         )
 
 

@@ -12,6 +12,14 @@ from gnomon.errors import InputError
 
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
+    "tilt-cf": "gnomon.estimators.complementary:TiltComplementaryFilter",
+    "eskf-r6": "gnomon.estimators.eskf:EskfR6",
+    "eskf-r3": "gnomon.estimators.eskf:EskfR3",
+    "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
+    "qcf": "gnomon.estimators.qcf:QuaternionCF",
+    "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
+    "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
+    "mekf-spacecraft": "gnomon.estimators.ekf_spacecraft:MEKFSpacecraft",
     "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
 }
 

@@ -489,6 +489,7 @@ class RobustAHRS(Estimator):
                     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(w))
                     bias[:] = np.clip(bias + K @ e, -clip, clip)
                     P -= K @ H @ P
+                    P[:] = 0.5 * (P + P.T)  # symmetric against rounding over long runs
         else:
             self.flags["acc_skipped"] = True
         # magnetometer: heading only

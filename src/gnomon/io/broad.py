@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import os
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -68,7 +69,7 @@ def _load_mat(path: Path) -> dict:
     except NotImplementedError:
         raise InputError("MATLAB v7.3 files are HDF5: save with -v7 or convert",
                          file=str(path)) from None
-    except (OSError, ValueError, TypeError, KeyError, IndexError,
+    except (OSError, ValueError, TypeError, KeyError, IndexError, EOFError, zlib.error,
             scipy.io.matlab.MatReadError) as err:
         raise InputError(f"cannot read as MATLAB .mat ({err})", file=str(path)) from None
     return {k: v for k, v in d.items() if not k.startswith("__")}

@@ -1,6 +1,12 @@
-"""Compiled batch loop of the 9-axis explicit complementary filter.
+"""Compiled loops of the 9-axis explicit complementary filter.
 
 Twin of ``gnomon.estimators.mahony.Mahony.update`` (tested sample by sample).
+One step is written once, in ``_core``, on scalars; the single-stream loop and
+the batch-over-runs loop both call it. The batch loop runs the step for all
+runs in a branch-light form that LLVM vectorises (the rotation exponential by
+its Taylor series only) and then redoes, with the exact trigonometric form,
+the few runs whose step rotated by more than 0.05 rad — so every run equals
+its single-stream result.
 """
 
 from __future__ import annotations
@@ -10,163 +16,198 @@ import math
 import numpy as np
 from numba import njit
 
+_SMALL_TH2 = 0.0025  # (0.05 rad)²: below it the Taylor form equals the trigonometric one
 
-@njit(cache=True, fastmath=False)
+
+@njit(inline="always", error_model="numpy", fastmath={"contract", "arcp"})
+def _exp_mul(w, x, y, z, rx, ry, rz, trig, normalise):
+    """``q ⊗ exp(r)`` (normalised if asked), and whether |r| >= 0.05 rad (``trig``: exact there).
+
+    The product of two unit quaternions is unit to rounding; normalising once per
+    filter step (after the correction) keeps the norm at 1 to ~1e-16.
+    """
+    th2 = rx * rx + ry * ry + rz * rz
+    big = th2 >= _SMALL_TH2
+    if trig and big:
+        th = math.sqrt(th2)
+        dw = math.cos(0.5 * th)
+        k = math.sin(0.5 * th) / th
+    else:
+        # Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸: the first omitted terms are
+        # below 1e-22 for θ < 0.05 rad, so this equals the trigonometric form there
+        dw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
+                                                               - th2 / 10321920.0)))
+        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0
+                                                              - th2 / 185794560.0)))
+    dx = k * rx
+    dy = k * ry
+    dz = k * rz
+    nw = w * dw - x * dx - y * dy - z * dz
+    nx = w * dx + x * dw + y * dz - z * dy
+    ny = w * dy - x * dz + y * dw + z * dx
+    nz = w * dz + x * dy - y * dx + z * dw
+    if not normalise:
+        return nw, nx, ny, nz, big
+    s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    return nw * s, nx * s, ny * s, nz * s, big
+
+
+@njit(inline="always", error_model="numpy", fastmath={"contract", "arcp"})
+def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
+          kp_acc, kp_mag, ki, heading_only, trig):
+    """One corrected step (0 < dt <= max_dt) on scalars.
+
+    Returns ``(w, x, y, z, b0, b1, b2, flags, big)``: flags bit 1 accelerometer skipped,
+    bit 2 magnetometer skipped; ``big``: a rotation of >= 0.05 rad was taken (see ``trig``).
+    """
+    w, x, y, z, big1 = _exp_mul(w, x, y, z, (gx - b0) * dt, (gy - b1) * dt, (gz - b2) * dt,
+                                trig, False)
+    # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
+    ux = 2.0 * (x * z - w * y)
+    uy = 2.0 * (y * z + w * x)
+    uz = 1.0 - 2.0 * (x * x + y * y)
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    ia = 1.0 / na if na > 0.0 else 0.0  # a zero vector gives a zero correction
+    ax *= ia
+    ay *= ia
+    az *= ia
+    ex = ay * uz - az * uy
+    ey = az * ux - ax * uz
+    ez = ax * uy - ay * ux
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    im = 1.0 / nm if nm > 0.0 else 0.0
+    mx *= im
+    my *= im
+    mz *= im
+    # h = R_nb m
+    hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
+        + 2.0 * (x * z + w * y) * mz
+    hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
+        + 2.0 * (y * z - w * x) * mz
+    hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
+        + (1.0 - 2.0 * (x * x + y * y)) * mz
+    rn = math.sqrt(hx * hx + hy * hy)
+    # predicted magnetic direction in body: R_nb^T [0, rn, hz]
+    vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
+    vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
+    vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
+    fx = my * vz - mz * vy
+    fy = mz * vx - mx * vz
+    fz = mx * vy - my * vx
+    if heading_only:
+        d = fx * ux + fy * uy + fz * uz
+        fx = d * ux
+        fy = d * uy
+        fz = d * uz
+    b0 -= ki * (ex + fx) * dt
+    b1 -= ki * (ey + fy) * dt
+    b2 -= ki * (ez + fz) * dt
+    w, x, y, z, big2 = _exp_mul(w, x, y, z, (kp_acc * ex + kp_mag * fx) * dt,
+                                (kp_acc * ey + kp_mag * fy) * dt,
+                                (kp_acc * ez + kp_mag * fz) * dt, trig, True)
+    flags = (1 if na == 0.0 else 0) | (2 if nm == 0.0 else 0)
+    return w, x, y, z, b0, b1, b2, flags, big1 or big2
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
                 kp_acc, kp_mag, ki, heading_only, max_dt):
     """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias.
 
     Returns flags as bits: 1 accelerometer skipped, 2 magnetometer skipped, 4 gap.
     """
-    flags = 0
     if dt <= 0.0:
-        return flags
-    _rotate_by(q, (gx - b[0]) * dt, (gy - b[1]) * dt, (gz - b[2]) * dt)
-    if dt > max_dt:
+        return 0
+    if dt > max_dt:  # gap: gyro propagation only
+        q[0], q[1], q[2], q[3], _ = _exp_mul(q[0], q[1], q[2], q[3], (gx - b[0]) * dt,
+                                             (gy - b[1]) * dt, (gz - b[2]) * dt, True, True)
         return 4
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
-    ux = 2.0 * (x * z - w * y)
-    uy = 2.0 * (y * z + w * x)
-    uz = 1.0 - 2.0 * (x * x + y * y)
-    ex = 0.0
-    ey = 0.0
-    ez = 0.0
-    na = math.sqrt(ax * ax + ay * ay + az * az)
-    if na > 0.0:
-        ax /= na
-        ay /= na
-        az /= na
-        ex = ay * uz - az * uy
-        ey = az * ux - ax * uz
-        ez = ax * uy - ay * ux
-    else:
-        flags |= 1
-    fx = 0.0
-    fy = 0.0
-    fz = 0.0
-    nm = math.sqrt(mx * mx + my * my + mz * mz)
-    if nm > 0.0:
-        mx /= nm
-        my /= nm
-        mz /= nm
-        # h = R_nb m
-        hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
-            + 2.0 * (x * z + w * y) * mz
-        hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
-            + 2.0 * (y * z - w * x) * mz
-        hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
-            + (1.0 - 2.0 * (x * x + y * y)) * mz
-        rn = math.sqrt(hx * hx + hy * hy)
-        # predicted magnetic direction in body: R_nb^T [0, rn, hz]
-        vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
-        vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
-        vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
-        fx = my * vz - mz * vy
-        fy = mz * vx - mx * vz
-        fz = mx * vy - my * vx
-        if heading_only:
-            d = fx * ux + fy * uy + fz * uz
-            fx = d * ux
-            fy = d * uy
-            fz = d * uz
-    else:
-        flags |= 2
-    b[0] -= ki * (ex + fx) * dt
-    b[1] -= ki * (ey + fy) * dt
-    b[2] -= ki * (ez + fz) * dt
-    _rotate_by(q, (kp_acc * ex + kp_mag * fx) * dt, (kp_acc * ey + kp_mag * fy) * dt,
-               (kp_acc * ez + kp_mag * fz) * dt)
+    q[0], q[1], q[2], q[3], b[0], b[1], b[2], flags, _ = _core(
+        q[0], q[1], q[2], q[3], b[0], b[1], b[2], dt, gx, gy, gz, ax, ay, az, mx, my, mz,
+        kp_acc, kp_mag, ki, heading_only, True)
     return flags
 
 
-@njit(cache=True)
-def _rotate_by(q, rx, ry, rz):
-    """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place (rotation vector in rad)."""
-    th2 = rx * rx + ry * ry + rz * rz
-    if th2 < 0.0025:
-        # |r| < 0.05 rad: Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸; the first omitted
-        # terms are below 1e-22, so this equals the trigonometric form to double precision
-        dw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
-                                                               - th2 / 10321920.0)))
-        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0
-                                                              - th2 / 185794560.0)))
-    else:
-        th = math.sqrt(th2)
-        dw = math.cos(0.5 * th)
-        k = math.sin(0.5 * th) / th
-    dx = k * rx
-    dy = k * ry
-    dz = k * rz
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    nw = w * dw - x * dx - y * dy - z * dz
-    nx = w * dx + x * dw + y * dz - z * dy
-    ny = w * dy - x * dz + y * dw + z * dx
-    nz = w * dz + x * dy - y * dx + z * dw
-    s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0] = nw * s
-    q[1] = nx * s
-    q[2] = ny * s
-    q[3] = nz * s
-
-
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
                  q_out, b_out, flags):
     """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
 
-    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs (N, 4), (N, 3), (N, 3).
+    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs ``q_out`` (N, 4),
+    ``b_out`` (N, 3) and ``flags`` (N,) uint8 with the bits of ``mahony_step``. The state
+    stays in registers over the loop (same arithmetic as ``mahony_step``).
     """
-    n = dt.shape[0]
-    for i in range(n):
-        f = mahony_step(q, b, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
-                        acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
-                        heading_only, max_dt)
-        flags[i, 0] = (f & 1) != 0
-        flags[i, 1] = (f & 2) != 0
-        flags[i, 2] = (f & 4) != 0
-        q_out[i, 0] = q[0]
-        q_out[i, 1] = q[1]
-        q_out[i, 2] = q[2]
-        q_out[i, 3] = q[3]
-        b_out[i, 0] = b[0]
-        b_out[i, 1] = b[1]
-        b_out[i, 2] = b[2]
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    b0, b1, b2 = b[0], b[1], b[2]
+    for i in range(dt.shape[0]):
+        h = dt[i]
+        f = 0
+        if h > max_dt:  # gap: gyro propagation only
+            w, x, y, z, _ = _exp_mul(w, x, y, z, (gyro[i, 0] - b0) * h, (gyro[i, 1] - b1) * h,
+                                     (gyro[i, 2] - b2) * h, True, True)
+            f = 4
+        elif h > 0.0:
+            w, x, y, z, b0, b1, b2, f, _ = _core(
+                w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
+                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
+                heading_only, True)
+        flags[i] = f
+        q_out[i, 0] = w
+        q_out[i, 1] = x
+        q_out[i, 2] = y
+        q_out[i, 3] = z
+        b_out[i, 0] = b0
+        b_out[i, 1] = b1
+        b_out[i, 2] = b2
+    q[0], q[1], q[2], q[3] = w, x, y, z
+    b[0], b[1], b[2] = b0, b1, b2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
 def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
                       q_out):
     """R independent filters over N samples, run-minor layout for SIMD over runs.
 
     ``dt`` (N,) s shared by the runs; ``gyro``, ``acc``, ``mag`` (N, 3, R); state ``q`` (4, R),
-    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Each run follows exactly the
-    same arithmetic as ``mahony_step`` (flags are not recorded here).
+    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Every run follows exactly the
+    arithmetic of ``mahony_step`` (flags are not recorded here).
     """
     n = dt.shape[0]
     r_count = q.shape[1]
-    qq = np.empty(4)
-    bb = np.empty(3)
+    q_prev = np.empty((4, r_count))
+    b_prev = np.empty((3, r_count))
+    big = np.zeros(r_count, np.bool_)
+    one = np.empty(4)
+    bias = np.empty(3)
     for i in range(n):
-        for r in range(r_count):
-            qq[0] = q[0, r]
-            qq[1] = q[1, r]
-            qq[2] = q[2, r]
-            qq[3] = q[3, r]
-            bb[0] = b[0, r]
-            bb[1] = b[1, r]
-            bb[2] = b[2, r]
-            mahony_step(qq, bb, dt[i], gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
-                        acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r],
-                        mag[i, 2, r], kp_acc, kp_mag, ki, heading_only, max_dt)
-            q[0, r] = qq[0]
-            q[1, r] = qq[1]
-            q[2, r] = qq[2]
-            q[3, r] = qq[3]
-            b[0, r] = bb[0]
-            b[1, r] = bb[1]
-            b[2, r] = bb[2]
-            q_out[i, 0, r] = qq[0]
-            q_out[i, 1, r] = qq[1]
-            q_out[i, 2, r] = qq[2]
-            q_out[i, 3, r] = qq[3]
+        h = dt[i]
+        if h > 0.0 and h <= max_dt:
+            q_prev[:, :] = q
+            b_prev[:, :] = b
+            for r in range(r_count):  # vectorised: no trigonometry, no branches
+                (q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], _,
+                 big[r]) = _core(q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r],
+                                 b[2, r], h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
+                                 acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
+                                 mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki,
+                                 heading_only, False)
+            for r in range(r_count):  # the rare large rotations, again with the exact form
+                if big[r]:
+                    one[:] = q_prev[:, r]
+                    bias[:] = b_prev[:, r]
+                    mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
+                                acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
+                                mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki, heading_only,
+                                max_dt)
+                    q[:, r] = one
+                    b[:, r] = bias
+        elif h > max_dt:
+            for r in range(r_count):
+                one[:] = q[:, r]
+                bias[:] = b[:, r]
+                mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
+                            acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
+                            mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki, heading_only,
+                            max_dt)
+                q[:, r] = one
+        q_out[i, :, :] = q

@@ -309,6 +309,11 @@ def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
             tmp[9 + 3 * i + j] = acc
     for i in range(9):
         s[S_P + i] -= tmp[9 + i]
+    # keep P symmetric (the short form above lets rounding asymmetry grow over 1e6+ updates)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        m = 0.5 * (s[S_P + 3 * i + j] + s[S_P + 3 * j + i])
+        s[S_P + 3 * i + j] = m
+        s[S_P + 3 * j + i] = m
 
 
 @njit(cache=True, error_model="numpy", inline="always")

@@ -1,0 +1,396 @@
+"""Complementary filters of seed 004 in discrete time: one axis (analysis) and 3D tilt (product).
+
+Source: "Complementary filter for determining the orientation of moving
+objects" (seed 004). The continuous-time analysis (transfer functions, closed
+forms) is in ``gnomon.analysis.complementary``; here the same filters run on
+sampled data.
+
+One axis (pure functions over arrays, uniform sample interval ``dt_s``;
+``omega_rad_s`` the gyro rate, ``phi_acc_rad`` the accelerometer angle, both (N,)):
+
+* ``first_order_filter``: ``φ̂_k = α(φ̂_{k−1} + ω_k·dt) + (1 − α)·φ_a,k`` with
+  ``α = T/(T + dt)`` — the usual embedded form of ``1/(Ts+1)``, ``Ts/(Ts+1)``;
+  its steady error under a constant drift is exactly ``T ω_d``.
+* ``second_order_filter``: feedback forms whose transfer functions are the
+  paper's variants (``e = φ_a − φ̂``):
+  variant 1 ``φ̂' = ω + c, c' = −r₁c + r₂e`` (→ ``1 − W = r₂/D``);
+  variant 2 ``φ̂' = ω + r₁e + c, c' = r₂e`` (→ ``1 − W = (r₁s + r₂)/D``, a PI
+  correction whose integral ``c`` is minus the gyro-drift estimate);
+  integrated by semi-implicit Euler.
+
+3D (``TiltComplementaryFilter``, registered as ``tilt-cf``): the first-order
+filter in quaternion form. State ``q_nb`` (ENU from body; a resting
+accelerometer reads ``[0, 0, +g]``). Per sample: propagate with the gyro,
+``q ← q ⊗ exp((ω − b̂)·dt)``; then rotate the estimate by the fraction
+``dt/(T + dt)`` of the rotation that takes the measured up direction
+``a/|a|`` onto the predicted one ``R_nbᵀ e_z`` (rotation vector ``e``, in b,
+perpendicular to the vertical so heading is untouched). About one fixed
+horizontal axis this is exactly ``first_order_filter``. Optional: a gyro-bias
+integral ``b̂ ← b̂ − r₂·e·dt`` (variant 2 in 3D), acceleration rejection when
+``||a| − g| > accel_rejection_rel·g``, and compensation of the vehicle's
+acceleration from a forward speed sensor (``compensate_accel``: subtract
+``dv/dt`` and ``ω × v`` — the paper's "next step"). Heading is unobservable
+and only integrates the gyro; score this filter by its inclination error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from gnomon.errors import InputError
+from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.recording import Recording
+from gnomon.rotation import quat_from_euler
+
+__all__ = [
+    "first_order_filter",
+    "second_order_filter",
+    "second_order_filter_reference",
+    "quat_from_accel",
+    "compensate_accel",
+    "TiltComplementaryFilter",
+    "TiltCFParams",
+]
+
+G0_M_S2 = 9.80665
+
+
+# ---------------------------------------------------------------- one axis
+def _one_axis_inputs(omega_rad_s, phi_acc_rad, dt_s):
+    w = np.asarray(omega_rad_s, dtype=float)
+    a = np.asarray(phi_acc_rad, dtype=float)
+    if w.ndim != 1 or a.shape != w.shape or w.size < 1:
+        raise ValueError(f"omega_rad_s and phi_acc_rad must be (N,) arrays of the same shape, "
+                         f"got {w.shape} and {a.shape}")
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        raise ValueError(f"dt_s must be positive, got {dt_s!r}")
+    return w, a
+
+
+def first_order_filter(omega_rad_s, phi_acc_rad, dt_s: float, T_s: float,
+                       phi0_rad: float | None = None) -> np.ndarray:
+    """First-order complementary filter on one axis; returns ``φ̂`` (N,) in rad.
+
+    ``φ̂_0 = phi0_rad`` (default ``φ_a,0``), then for ``k ≥ 1``
+    ``φ̂_k = α(φ̂_{k−1} + ω_k dt) + (1 − α)φ_a,k``, ``α = T/(T + dt)``.
+    Evaluated with ``scipy.signal.lfilter`` (a linear recursion).
+    """
+    w, a = _one_axis_inputs(omega_rad_s, phi_acc_rad, dt_s)
+    if not T_s > 0.0:
+        raise ValueError(f"T_s must be positive, got {T_s!r}")
+    phi0 = float(a[0]) if phi0_rad is None else float(phi0_rad)
+    alpha = T_s / (T_s + dt_s)
+    out = np.empty_like(w)
+    out[0] = phi0
+    if w.size > 1:
+        u = alpha * w[1:] * dt_s + (1.0 - alpha) * a[1:]
+        out[1:], _ = signal.lfilter([1.0], [1.0, -alpha], u, zi=[alpha * phi0])
+    return out
+
+
+def _second_order_ss(dt_s: float, r1: float, r2: float, variant: int):
+    """``x_k = A x_{k−1} + B u_k`` with ``x = [φ̂, c]``, ``u = [ω, φ_a]``."""
+    if variant == 1:
+        lam, g = 1.0 - r1 * dt_s, 0.0
+    elif variant == 2:
+        lam, g = 1.0, 1.0
+    else:
+        raise ValueError(f"variant must be 1 or 2, got {variant!r}")
+    A = np.array([[1.0 - g * r1 * dt_s - r2 * dt_s**2, lam * dt_s],
+                  [-r2 * dt_s, lam]])
+    B = np.array([[dt_s, g * r1 * dt_s + r2 * dt_s**2],
+                  [0.0, r2 * dt_s]])
+    return A, B
+
+
+def second_order_filter(omega_rad_s, phi_acc_rad, dt_s: float, r1: float, r2: float,
+                        variant: int, phi0_rad: float | None = None) -> np.ndarray:
+    """Second-order complementary filter (paper's variant 1 or 2) on one axis; ``φ̂`` (N,) rad.
+
+    Per sample ``k ≥ 1``, with ``e_k = φ_a,k − φ̂_{k−1}``:
+    variant 1 ``c_k = (1 − r₁dt)c_{k−1} + r₂dt·e_k``, ``φ̂_k = φ̂_{k−1} + (ω_k + c_k)dt``;
+    variant 2 ``c_k = c_{k−1} + r₂dt·e_k``, ``φ̂_k = φ̂_{k−1} + (ω_k + r₁e_k + c_k)dt``.
+    Starts at ``φ̂_0 = phi0_rad`` (default ``φ_a,0``), ``c_0 = 0``. Evaluated as two
+    ``lfilter`` passes (second-order sections) of the equivalent state-space model;
+    ``second_order_filter_reference`` is the plain loop it is tested against.
+    """
+    w, a = _one_axis_inputs(omega_rad_s, phi_acc_rad, dt_s)
+    phi0 = float(a[0]) if phi0_rad is None else float(phi0_rad)
+    A, B = _second_order_ss(dt_s, r1, r2, variant)
+    out = np.empty_like(w)
+    out[0] = phi0
+    if w.size > 1:
+        # y_k = C x_k = C A x_{k-1} + C B u_k; a constant offset phi0 on φ̂ and φ_a
+        # is an equilibrium, so run from zero state on (ω, φ_a − φ0).
+        C = np.array([[1.0, 0.0]])
+        y = np.zeros(w.size - 1)
+        for i, u in enumerate((w[1:], a[1:] - phi0)):
+            num, den = signal.ss2tf(A, B[:, i:i + 1], C @ A, C @ B[:, i:i + 1])
+            y += signal.sosfilt(signal.tf2sos(num[0], den), u)
+        out[1:] = phi0 + y
+    return out
+
+
+def second_order_filter_reference(omega_rad_s, phi_acc_rad, dt_s: float, r1: float,
+                                  r2: float, variant: int,
+                                  phi0_rad: float | None = None) -> np.ndarray:
+    """Readable per-sample loop of ``second_order_filter`` (slow; for tests)."""
+    w, a = _one_axis_inputs(omega_rad_s, phi_acc_rad, dt_s)
+    phi = float(a[0]) if phi0_rad is None else float(phi0_rad)
+    c = 0.0
+    out = np.empty_like(w)
+    out[0] = phi
+    for k in range(1, w.size):
+        e = a[k] - phi
+        if variant == 1:
+            c = (1.0 - r1 * dt_s) * c + r2 * dt_s * e
+            phi = phi + (w[k] + c) * dt_s
+        elif variant == 2:
+            c = c + r2 * dt_s * e
+            phi = phi + (w[k] + r1 * e + c) * dt_s
+        else:
+            raise ValueError(f"variant must be 1 or 2, got {variant!r}")
+        out[k] = phi
+    return out
+
+
+# ---------------------------------------------------------------- 3D helpers
+def quat_from_accel(accel_m_s2) -> np.ndarray:
+    """Level attitude ``q_nb`` (ENU from body, yaw 0) from a specific force (..., 3) in b.
+
+    Roll ``atan2(a_y, a_z)``, pitch ``atan2(−a_x, hypot(a_y, a_z))``: then
+    ``R_nbᵀ e_z`` is ``a/|a|``. A zero vector gives the identity.
+    """
+    a = np.asarray(accel_m_s2, dtype=float)
+    roll = np.arctan2(a[..., 1], a[..., 2])
+    pitch = np.arctan2(-a[..., 0], np.hypot(a[..., 1], a[..., 2]))
+    return quat_from_euler(np.stack([roll, pitch, np.zeros_like(roll)], -1))
+
+
+def compensate_accel(t_s, accel_m_s2, gyro_rad_s, speed_m_s) -> np.ndarray:
+    """Accelerometer reading with the vehicle's own acceleration removed, causally (N, 3) m/s².
+
+    ``speed_m_s`` (N,): forward speed along body x from a speed sensor
+    (odometer, GNSS speed), NaN at samples without a new measurement. At each
+    new measurement ``j`` the derivative ``(v_j − v_{j−1})/(t_j − t_{j−1})`` is
+    formed and held until the next one; the speed is extrapolated with it in
+    between. Then ``a_lin_b = [dv/dt, 0, 0] + ω × [v, 0, 0]`` is subtracted
+    (``f_b = dv_b/dt + ω × v_b + R_nbᵀ[0, 0, g]`` for a body moving along its x
+    axis; Earth rate neglected). Before the second measurement nothing is
+    subtracted. This is the loop of ``TiltComplementaryFilter.update``.
+    """
+    t = np.asarray(t_s, dtype=float)
+    f = np.array(accel_m_s2, dtype=float)
+    w = np.asarray(gyro_rad_s, dtype=float)
+    v_meas = np.asarray(speed_m_s, dtype=float)
+    st = _SpeedState()
+    for k in range(t.size):
+        st.step(t[k], v_meas[k])
+        f[k] -= st.a_lin(w[k])
+    return f
+
+
+class _SpeedState:
+    """Causal ``dv/dt`` and ``v`` from a sparse speed signal (see ``compensate_accel``)."""
+
+    def __init__(self):
+        self.t_last = math.nan
+        self.v_last = math.nan
+        self.dvdt = 0.0
+        self.v = 0.0
+        self.valid = False
+
+    def step(self, t: float, v_meas: float) -> None:
+        if math.isfinite(v_meas):
+            if math.isfinite(self.t_last) and t > self.t_last:
+                self.dvdt = (v_meas - self.v_last) / (t - self.t_last)
+                self.valid = True
+            self.t_last, self.v_last = t, v_meas
+        if math.isfinite(self.t_last):
+            self.v = self.v_last + (self.dvdt * (t - self.t_last) if self.valid else 0.0)
+
+    def a_lin(self, w) -> np.ndarray:
+        if not self.valid:
+            return np.zeros(3)
+        v = self.v
+        # [dv/dt, 0, 0] + w × [v, 0, 0] = [dv/dt, w_z v, −w_y v]
+        return np.array([self.dvdt, w[2] * v, -w[1] * v])
+
+
+def _expq(rv) -> np.ndarray:
+    th = math.sqrt(rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2])
+    if th < 1e-4:
+        th2 = th * th
+        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
+    else:
+        k = math.sin(0.5 * th) / th
+    return np.array([math.cos(0.5 * th), k * rv[0], k * rv[1], k * rv[2]])
+
+
+def _qmul(p, q) -> np.ndarray:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array([pw * qw - px * qx - py * qy - pz * qz,
+                     pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx,
+                     pw * qz + px * qy - py * qx + pz * qw])
+
+
+# ---------------------------------------------------------------- 3D estimator
+@dataclass(frozen=True)
+class TiltCFParams(Params):
+    """Tuning of the 3D tilt complementary filter (SI units).
+
+    Defaults are for a MEMS IMU on a hand-held or vehicle-mounted object (chosen on
+    the BROAD HDF5 trials: T = 10 s, a slow bias integral, rejection at 10 % of g).
+    The paper's filter is ``time_constant_s=100, bias_gain_1_s2=0,
+    accel_rejection_rel=0`` (what ``reproduce.p004`` runs).
+    """
+
+    time_constant_s: float = param(10.0, "s", "T: time constant of the accelerometer correction "
+                                   "(paper's first-order filter; 100 s in its example)")
+    bias_gain_1_s2: float = param(0.002, "1/s^2", "r2: gain of the gyro-bias integral "
+                                  "(second-order variant 2 in 3D); 0 disables it")
+    accel_rejection_rel: float = param(0.1, "1", "skip the correction when ||a|-g| > this*g; "
+                                       "0 disables rejection")
+    gravity_m_s2: float = param(G0_M_S2, "m/s^2", "gravity magnitude for rejection")
+    init_samples: int = param(10, "", "accelerometer samples averaged for the initial tilt")
+    speed_compensation: bool = param(False, "", "subtract dv/dt and w x v from the accelerometer "
+                                     "using extra['speed_m_s'] (forward speed, NaN = no sample)")
+
+    def validate(self) -> None:
+        self._require("time_constant_s", self.time_constant_s > 0.0, "must be > 0")
+        self._require("bias_gain_1_s2", self.bias_gain_1_s2 >= 0.0, "must be >= 0")
+        self._require("accel_rejection_rel", self.accel_rejection_rel >= 0.0, "must be >= 0")
+        self._require("gravity_m_s2", self.gravity_m_s2 > 0.0, "must be > 0")
+        self._require("init_samples", self.init_samples >= 1, "must be >= 1")
+
+
+class TiltComplementaryFilter(Estimator):
+    """3D tilt complementary filter in quaternion form (seed 004); estimate ``q_nb``, n = ENU.
+
+    Streaming: ``update(gyro_rad_s, accel_m_s2, dt_s, speed_m_s=nan)`` per sample
+    (the first call initialises from the accelerometer, ignoring the gyro). Batch:
+    ``run(rec)`` (numba kernel ``gnomon.kernels.tilt_cf``; initial tilt from the mean
+    of the first ``init_samples`` accelerometer samples). Signals: ``acc_rejected``
+    (N,) bool (rejection or a zero accelerometer vector), ``bias_rad_s`` (N, 3).
+    """
+
+    name = "tilt-cf"
+    summary = "3D tilt complementary filter, first order (+ optional bias integral), seed 004"
+    Params = TiltCFParams
+    needs = ("gyro", "accel")
+    state_fields = ("q", "bias_rad_s", "acc_rejected", "t_last")
+
+    def reset(self) -> None:
+        self.q = None
+        self.bias_rad_s = np.zeros(3)
+        self.acc_rejected = False
+        self.t_last = None  # s, last sample processed by ``run``
+        self._t = 0.0
+        self._speed = _SpeedState()
+
+    # -- one sample, readable (the kernel's reference) --
+    def update(self, gyro_rad_s, accel_m_s2, dt_s: float, speed_m_s: float = math.nan
+               ) -> np.ndarray:
+        """Process one sample; returns ``q_nb`` (4,). ``dt_s``: time since the previous sample."""
+        w = np.asarray(gyro_rad_s, dtype=float)
+        f = np.array(accel_m_s2, dtype=float)
+        if self.q is None:
+            self._t = 0.0
+        else:
+            self._t += dt_s
+        if self.params.speed_compensation:
+            self._speed.step(self._t, speed_m_s)
+            f = f - self._speed.a_lin(w)
+        if self.q is None:
+            self.q = quat_from_accel(f)
+            self.acc_rejected = not np.linalg.norm(f) > 0.0
+            return self.q.copy()
+        self.q, self.bias_rad_s, self.acc_rejected = _tilt_step_py(
+            self.q, self.bias_rad_s, w, f, dt_s, self.params.time_constant_s,
+            self.params.bias_gain_1_s2, self.params.accel_rejection_rel,
+            self.params.gravity_m_s2)
+        return self.q.copy()
+
+    # -- batch --
+    def run(self, rec: Recording) -> Estimate:
+        self.check_inputs(rec)
+        p = self.params
+        accel = rec.accel
+        if p.speed_compensation:
+            speed = rec.extra.get("speed_m_s")
+            if speed is None:
+                raise InputError("speed_compensation needs extra['speed_m_s']; the recording "
+                                 "has none", field="extra.speed_m_s", file=rec.source or None)
+            speed = np.asarray(speed, dtype=float).reshape(-1)
+            if speed.shape != rec.t.shape:
+                raise InputError(f"expected shape {rec.t.shape}, got {speed.shape}",
+                                 field="extra.speed_m_s")
+            accel = compensate_accel(rec.t, accel, rec.gyro, speed)
+        if self.q is None:
+            n0 = min(p.init_samples, rec.t.size)
+            q0, b0, t_prev = quat_from_accel(np.mean(accel[:n0], axis=0)), np.zeros(3), math.nan
+        else:  # continue from the state of an earlier run
+            q0, b0 = self.q, self.bias_rad_s
+            t_prev = rec.t[0] - self.first_dt(rec)
+        q, bias, rej = tilt_cf_batch(rec.t, rec.gyro, accel, q0, p, b0=b0, t_prev=t_prev)
+        self.q, self.bias_rad_s, self.acc_rejected = q[-1].copy(), bias[-1].copy(), bool(rej[-1])
+        self.t_last = float(rec.t[-1])
+        return Estimate(t=rec.t, q=q, estimator=self.name, params=p.as_dict(),
+                        frames={"reference": rec.frames.get("reference", "ENU"),
+                                "body": rec.frames.get("body", "sensor")},
+                        signals={"acc_rejected": rej, "bias_rad_s": bias})
+
+
+def _tilt_step_py(q, b, w, f, dt, T, r2, rej_rel, g):
+    """One step of the 3D filter (readable reference of ``kernels.tilt_cf.tilt_cf_step``)."""
+    q = _qmul(q, _expq((w - b) * dt))
+    q = q / np.linalg.norm(q)
+    rejected = True
+    nf = float(np.linalg.norm(f))
+    if nf > 0.0 and not (rej_rel > 0.0 and abs(nf - g) > rej_rel * g):
+        rejected = False
+        m = f / nf
+        qw, qx, qy, qz = q
+        u = np.array([2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx),
+                      1.0 - 2.0 * (qx * qx + qy * qy)])
+        c = np.cross(m, u)
+        s = float(np.linalg.norm(c))
+        if s > 0.0:
+            e = math.atan2(s, float(m @ u)) / s * c   # rotation vector taking m onto u
+            if r2 > 0.0:
+                b = b - r2 * dt * e
+            q = _qmul(q, _expq(dt / (T + dt) * e))
+            q = q / np.linalg.norm(q)
+    return q, b, rejected
+
+
+def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams, b0=None,
+                  t_prev: float = math.nan):
+    """Batch run of the 3D filter from ``q0`` at ``t_s[0]`` (numba kernel).
+
+    Returns ``q_nb`` (N, 4), ``bias_rad_s`` (N, 3), ``acc_rejected`` (N,) bool.
+    Sample 0 is ``q0`` itself (flagged rejected if its accelerometer vector is zero),
+    unless ``t_prev`` (s) is given: then the filter steps from ``q0``, ``b0`` (rad/s)
+    at ``t_prev`` to ``t_s[0]`` (a continued run).
+    """
+    from gnomon.kernels.tilt_cf import tilt_cf_run
+
+    t = np.ascontiguousarray(t_s, dtype=float)
+    n = t.size
+    q = np.empty((n, 4))
+    b = np.empty((n, 3))
+    rej = np.zeros(n, dtype=np.bool_)
+    tilt_cf_run(t, np.ascontiguousarray(gyro_rad_s, dtype=float),
+                np.ascontiguousarray(accel_m_s2, dtype=float),
+                np.ascontiguousarray(q0, dtype=float),
+                np.zeros(3) if b0 is None else np.ascontiguousarray(b0, dtype=float),
+                float(t_prev), float(params.time_constant_s),
+                float(params.bias_gain_1_s2), float(params.accel_rejection_rel),
+                float(params.gravity_m_s2), q, b, rej)
+    return q, b, rej

@@ -1,0 +1,240 @@
+"""Complementary filter driven by a measured quaternion (the proposal of seed 000).
+
+"Estimating the attitude of a microsatellite with a complementary filter"
+(``shared/spec/000-microsat-complementary.md``): the two vector pairs
+(magnetometer / field model, sun sensor / sun model) give a *measured*
+attitude ``q_mes`` (= ``q_ob``, orbital from body) by a Wahba solver, and the
+filter corrects its gyro propagation with the error quaternion
+
+    e = conj(q̂) ⊗ q_mes        (sign chosen so that e_w >= 0)
+    q̂ ← q̂ ⊗ exp((ω_ib − R̂_bo ω_io − b̂) dt)            (predict)
+    b̂ ← b̂ − K_I vec(e) dt,   q̂ ← q̂ ⊗ exp(K_P vec(e) dt)  (correct)
+
+(the paper's ``d = K_P vec(e) + K_I ∫vec(e)``). For a small error ``θ``,
+``vec(e) ≈ −θ/2``: the correction acts with ``K_P/2`` on every axis (the
+explicit filter acts with ``K_P (I + c cᵀ)``, ``c = b × s``: 2x on b, s and 4x on c
+at the same ``K_P``, see ``ecf_spacecraft``).
+
+``q_mes`` comes from the paper's Gauss-Newton iteration by default
+(``solver="gauss-newton"``: ``gn_iterations`` steps per sample, each sample
+starting from the previous solution — compiled in
+``gnomon.kernels.spacecraft_cf.gn_sequence``), or from any solver of
+``gnomon.estimators.wahba`` (``triad``, ``davenport``, ``quest``, ``svd``,
+vectorised over the samples). Degenerate samples (a pair unusable, the two
+directions closer than the quality threshold) give no measurement: the filter
+then uses the magnetometer pair alone with ``kp_single_rad_s``,
+``ki_single_per_s`` (the magnetometer + gyro filter) or, with both zero,
+coasts on the gyro. Sun loss is handled by the same substitutes as the
+explicit filter (``sun_substitute``: the paper's delayed magnetometer pair,
+the gyro-propagated one, or none).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.ecf_spacecraft import (
+    SUN_SUBSTITUTES,
+    _correct,
+    _propagate,
+    _unit,
+    initial_q_ob,
+    vector_pairs,
+)
+from gnomon.estimators.wahba import DEFAULT_MIN_QUALITY, SOLVERS, solve
+from gnomon.recording import Recording
+from gnomon.rotation import quat_conj, quat_mul, quat_rotate
+
+__all__ = ["QuaternionCFParams", "QuaternionCF", "measured_quaternions",
+           "gauss_newton_sequence_py"]
+
+
+@dataclass(frozen=True)
+class QuaternionCFParams(Params):
+    kp_rad_s: float = param(0.06, "rad/s", "proportional gain K_P on vec(conj(q̂) ⊗ q_mes) "
+                             "(tuned on seed000)")
+    ki_per_s: float = param(6e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
+    kp_single_rad_s: float = param(0.005, "rad/s", "K_P of the magnetometer-only correction "
+                                   "when there is no q_mes")
+    ki_single_per_s: float = param(2e-5, "rad/s^2", "K_I of the magnetometer-only correction")
+    solver: str = param("gauss-newton", "", "Wahba solver for q_mes: gauss-newton | quest | "
+                        "davenport | svd | triad")
+    gn_iterations: int = param(2, "", "Gauss-Newton steps per sample")
+    k_mag: float = param(1.0, "", "weight of the magnetometer pair in Wahba's loss")
+    k_sun: float = param(1.0, "", "weight of the sun (or substitute) pair")
+    sun_substitute: str = param("delayed", "", "when the sun is invalid: delayed | "
+                                "delayed-gyro | none")
+    delay_samples: int = param(500, "samples", "M of the delayed magnetometer pair")
+    min_quality: float = param(DEFAULT_MIN_QUALITY, "", "Wahba quality s2/s1 below which "
+                               "q_mes is not used")
+    orbital_rate_rad_s: float = param(0.0, "rad/s", "mean motion n if the recording has no "
+                                      "extra['w_io_o']")
+    max_dt_s: float = param(10.0, "s", "longer sample intervals are gaps: gyro only")
+
+    def validate(self):
+        for name in ("kp_rad_s", "ki_per_s", "kp_single_rad_s", "ki_single_per_s", "k_mag",
+                     "k_sun", "orbital_rate_rad_s", "min_quality"):
+            self._require(name, getattr(self, name) >= 0, "must be >= 0")
+        self._require("solver", self.solver in SOLVERS, f"must be one of {', '.join(SOLVERS)}")
+        self._require("gn_iterations", self.gn_iterations >= 1, "must be >= 1")
+        self._require("sun_substitute", self.sun_substitute in SUN_SUBSTITUTES,
+                      f"must be one of {', '.join(SUN_SUBSTITUTES)}")
+        self._require("delay_samples", self.delay_samples >= 1, "must be >= 1")
+        self._require("max_dt_s", self.max_dt_s > 0, "must be > 0")
+
+
+def gauss_newton_sequence_py(pairs: dict, q0, iterations: int = 2, k_mag: float = 1.0,
+                             k_sun: float = 1.0, min_quality: float = DEFAULT_MIN_QUALITY):
+    """Readable twin of the compiled ``gn_sequence``: (q_mes (N, 4), ok (N,))."""
+    from gnomon.estimators.wahba import gauss_newton
+
+    n = len(pairs["dt"])
+    q = np.asarray(q0, float) / np.linalg.norm(q0)
+    out = np.empty((n, 4))
+    ok = np.zeros(n, bool)
+    for i in range(n):
+        good = bool(pairs["sec_valid"][i])
+        if good:
+            r = np.stack([pairs["mag_o"][i], pairs["sec_o"][i]])
+            b = np.stack([pairs["mag_b"][i], pairs["sec_b"][i]])
+            res = gauss_newton(r, b, np.array([k_mag, k_sun]), min_quality=min_quality,
+                               q0=q, iterations=0)
+            good = not res.degenerate
+            if good:
+                q = gauss_newton(r, b, np.array([k_mag, k_sun]), q0=q, iterations=iterations).q
+        ok[i] = good
+        out[i] = q
+    return out, ok
+
+
+def measured_quaternions(pairs: dict, solver: str = "gauss-newton", q0=None,
+                         gn_iterations: int = 2, k_mag: float = 1.0, k_sun: float = 1.0,
+                         min_quality: float = DEFAULT_MIN_QUALITY):
+    """``q_mes`` = ``q_ob`` (N, 4) from the vector pairs and its usability (N,) bool.
+
+    ``pairs`` as returned by ``ecf_spacecraft.vector_pairs``. Gauss-Newton runs
+    sequentially (compiled, warm-started); the other solvers are vectorised.
+    """
+    n = len(pairs["dt"])
+    if solver == "gauss-newton":
+        from gnomon.kernels.spacecraft_cf import gn_sequence
+
+        q = np.array([1.0, 0.0, 0.0, 0.0] if q0 is None else q0, float)
+        q_out = np.empty((n, 4))
+        ok = np.zeros(n, np.bool_)
+        gn_sequence(pairs["mag_o"], pairs["mag_b"], pairs["sec_o"], pairs["sec_b"],
+                    float(k_mag), float(k_sun), pairs["sec_valid"], q, int(gn_iterations),
+                    float(min_quality), q_out, ok)
+        return q_out, ok
+    r = np.stack([pairs["mag_o"], pairs["sec_o"]], axis=1)
+    b = np.stack([pairs["mag_b"], pairs["sec_b"]], axis=1)
+    w = np.stack([np.full(n, float(k_mag)), np.where(pairs["sec_valid"], float(k_sun), 0.0)],
+                 axis=1)
+    if solver == "triad":  # TRIAD trusts its first vector: the noiseless sun
+        r, b, w = r[:, ::-1], b[:, ::-1], w[:, ::-1]
+    res = solve(solver, r, b, w, min_quality=min_quality)
+    return res.q, ~res.degenerate & pairs["sec_valid"]
+
+
+class QuaternionCF(Estimator):
+    """Complementary filter on the measured quaternion (seed 000's proposal); ``q_ob``."""
+
+    name = "qcf"
+    summary = ("Complementary filter driven by a measured quaternion (seed 000): Gauss-Newton "
+               "(or QUEST/SVD/...) q_mes from mag + sun, PI on vec(conj(q) ⊗ q_mes)")
+    Params = QuaternionCFParams
+    needs = ("gyro", "mag", "extra.b_o_nT")
+    state_fields = ("q", "bias", "t_last", "tail")
+
+    def reset(self) -> None:
+        self.q = None
+        self.bias = np.zeros(3)
+        self.t_last = None  # s, last sample processed by ``run``
+        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
+        self.flags = {}
+
+    def update(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b=None, mag_o=None):
+        """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
+        p = self.params
+        if self.q is None:
+            self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.flags = {"mag_unusable": False, "mes_unusable": False, "gap": False,
+                      "coast": False}
+        if not (0.0 < dt_s < 1e300):
+            return self.q
+        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
+        if not ok_g:
+            self.flags["coast"] = True
+        if dt_s > p.max_dt_s:
+            self.flags.update(gap=True, coast=True)
+            return self.q
+        qm = np.asarray(q_mes, float)
+        nm = float(np.linalg.norm(qm)) if np.all(np.isfinite(qm)) else 0.0
+        ok_q = bool(mes_valid) and 0.5 < nm < 2.0
+        ubm, ok_mb = _unit(np.zeros(3) if mag_b is None else mag_b)
+        uom, ok_mo = _unit(np.zeros(3) if mag_o is None else mag_o)
+        ok_m = ok_mb and ok_mo
+        self.flags["mag_unusable"] = not ok_m
+        self.flags["mes_unusable"] = not ok_q
+        if ok_q:
+            e = quat_mul(quat_conj(self.q), qm / nm)
+            ev = e[1:] if e[0] >= 0 else -e[1:]
+            kp, ki = p.kp_rad_s, p.ki_per_s
+        elif ok_m and (p.kp_single_rad_s > 0 or p.ki_single_per_s > 0):
+            ev = np.cross(ubm, quat_rotate(quat_conj(self.q), uom))
+            kp, ki = p.kp_single_rad_s, p.ki_single_per_s
+        else:
+            self.flags["coast"] = True
+            return self.q
+        self.bias = self.bias - ki * ev * dt_s
+        self.q = _correct(self.q, kp * ev * dt_s)
+        return self.q
+
+    def measure(self, rec: Recording, pairs: dict | None = None, q0=None):
+        """(pairs, q_mes, ok) for ``rec`` with this filter's solver and substitution."""
+        p = self.params
+        if pairs is None:
+            pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
+                                 history=self.tail)
+            pairs["dt"][0] = self.first_dt(rec)
+        if q0 is None:
+            q0 = initial_q_ob(pairs)
+        q_mes, ok = measured_quaternions(pairs, p.solver, q0, p.gn_iterations, p.k_mag,
+                                         p.k_sun, p.min_quality)
+        return pairs, q_mes, ok
+
+    def run(self, rec: Recording, q0=None, measured=None) -> Estimate:
+        """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
+        sample with both pairs); ``measured``: a precomputed ``(pairs, q_mes, ok)``."""
+        from gnomon.kernels.spacecraft_cf import qcf_batch
+
+        self.check_inputs(rec)
+        p = self.params
+        pairs, q_mes, ok = measured if measured is not None else self.measure(rec)
+        if q0 is not None:
+            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
+        elif self.q is None:
+            self.q = initial_q_ob(pairs)
+        n = len(rec)
+        q_out = np.empty((n, 4))
+        b_out = np.empty((n, 3))
+        flags = np.zeros((n, 4), np.int8)
+        state_q = np.array(self.q, float)
+        state_b = np.array(self.bias, float)
+        qcf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], np.ascontiguousarray(q_mes),
+                  np.asarray(ok, np.bool_), pairs["mag_b"], pairs["mag_o"], state_q, state_b,
+                  p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.max_dt_s,
+                  q_out, b_out, flags)
+        self.q, self.bias = state_q, state_b
+        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
+        return Estimate(
+            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
+            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
+            signals={"bias_rad_s": b_out, "q_mes": q_mes, "q_mes_ok": np.asarray(ok, bool),
+                     "mag_unusable": flags[:, 0].astype(bool),
+                     "mes_unusable": flags[:, 1].astype(bool), "gap": flags[:, 2].astype(bool),
+                     "coast": flags[:, 3].astype(bool), "sun_substituted": pairs["substituted"]},
+        )

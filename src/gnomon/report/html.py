@@ -1,0 +1,314 @@
+"""The self-contained HTML report of ``gnomon reproduce all --out DIR``.
+
+``DIR/index.html`` links one page per paper (``DIR/pNNN.html``). Each page
+has the system in two sentences, the scenario's parameters (those the paper
+left out marked as chosen, when the reproduction says so), a table
+"paper's reported value | gnomon's value | target | met?", every figure the
+reproduction wrote into ``DIR/pNNN/`` and the full metrics JSON.
+
+gnomon's values are read from the same result dictionaries the ``--json``
+outputs print; nothing here is typed in except the papers' own reported
+numbers (quoted from ``shared/spec``) and the targets of the issues.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["build_report", "CHECKS", "evaluate"]
+
+
+@dataclass(frozen=True)
+class Check:
+    label: str
+    paper: str  # the paper's reported value, as the paper states it
+    value: Callable[[dict], float]  # gnomon's value from the result dict
+    target: str  # the target in words
+    met: Callable[[dict], bool] | None = None  # None: reported, no target
+    unit: str = "deg"
+
+
+def _get(d: dict, *path):
+    for key in path:
+        d = d[key]
+    return d
+
+
+def _ratio(a, b):
+    return a / b if b else math.nan
+
+
+SUMMARY = {
+    "000": "A microsatellite estimates its attitude from a magnetometer, a sun sensor and MEMS "
+           "gyros with complementary filters: Mahony's explicit filter on vector pairs versus a "
+           "filter driven by a quaternion measured by least squares (Gauss-Newton, QUEST...). "
+           "The paper also replaces a lost sun sensor by the magnetometer delayed by M samples.",
+    "001": "A microsatellite estimates body rate and attitude with an extended Kalman filter "
+           "built on the rigid-body dynamics, from a magnetometer and a sun sensor only. The "
+           "paper studies errors in the inertia, the field model and the sun sensor, and eclipse.",
+    "002": "A strapdown AHRS (gyro, accelerometer, magnetometer) uses an error-state quaternion "
+           "Kalman filter; the paper reduces the measurement vector from 6 to 3 components and "
+           "claims the same information at lower cost, with full observability.",
+    "003": "An aerial vehicle measures its pitch from a fixed camera: a narrow vertical strip of "
+           "the current image is matched against a reference image by a one-parameter "
+           "least-squares shift, correcting gyro-only attitude.",
+    "004": "First- and second-order complementary filters fuse a gyro with an accelerometer; the "
+           "paper computes the errors caused by a constant gyro drift and a long linear "
+           "acceleration, and proposes compensating the acceleration from speed information.",
+}
+
+CHECKS: dict[str, list[Check]] = {
+    "000": [
+        Check("RMS error, explicit CF, same gain", "2.82", lambda r: _get(
+            r, "same_gain", "ecf_rms_deg"), "reported"),
+        Check("RMS error, quaternion CF, same gain", "1.05", lambda r: _get(
+            r, "same_gain", "qcf_rms_deg"), "reported"),
+        Check("ratio ECF / QCF, same gain", "2.69", lambda r: _get(
+            r, "same_gain", "ratio_ecf_over_qcf"), ">= 2",
+            lambda r: _get(r, "same_gain", "ratio_ecf_over_qcf") >= 2, ""),
+        Check("ratio ECF / QCF, each tuned to its best", "—", lambda r: _get(
+            r, "tuned", "ratio_ecf_over_qcf"), ">= 0.95",
+            lambda r: _get(r, "tuned", "ratio_ecf_over_qcf") >= 0.95, ""),
+        Check("QCF RMS after the drift step <= ECF's", "better", lambda r: _get(
+            r, "tuned", "drift_step", "qcf_rms_deg"), "<= ECF",
+            lambda r: _get(r, "tuned", "drift_step", "qcf_rms_deg")
+            <= _get(r, "tuned", "drift_step", "ecf_rms_deg")),
+        Check("sun loss (M = 500): max roll error", "< 5", lambda r: _get(
+            r, "sun_loss", "paper", "max_abs_error_deg", "roll"), "< 5",
+            lambda r: _get(r, "sun_loss", "paper", "max_abs_error_deg", "roll") < 5),
+        Check("sun loss (M = 500): max pitch error", "< 5", lambda r: _get(
+            r, "sun_loss", "paper", "max_abs_error_deg", "pitch"), "< 5",
+            lambda r: _get(r, "sun_loss", "paper", "max_abs_error_deg", "pitch") < 5),
+        Check("sun loss (M = 500): max yaw error", "< 10", lambda r: _get(
+            r, "sun_loss", "paper", "max_abs_error_deg", "yaw"), "< 10",
+            lambda r: _get(r, "sun_loss", "paper", "max_abs_error_deg", "yaw") < 10),
+        Check("sun loss: improved method RMS", "—", lambda r: _get(
+            r, "sun_loss", "improved", "rms_deg"), "< paper's method",
+            lambda r: _get(r, "sun_loss", "improved", "rms_deg")
+            < _get(r, "sun_loss", "paper", "rms_deg")),
+    ],
+    "001": [
+        Check("ideal case RMS", "0 to 0.5 (mean errors)", lambda r: _get(r, "ideal", "rms_deg"),
+              "<= 0.5", lambda r: _get(r, "ideal", "rms_deg") <= 0.5),
+        Check("inertia 10%: mean peak error", "hurts least", lambda r: _get(
+            r, "sensitivity", "inertia", "10", "mean_peak_error_deg"), "< field and sun",
+            lambda r: _get(r, "sensitivity", "inertia", "10", "mean_peak_error_deg") < min(
+                _get(r, "sensitivity", "field_model", "10", "mean_peak_error_deg"),
+                _get(r, "sensitivity", "sun_sensor", "10", "mean_peak_error_deg"))),
+        Check("field model 10%: mean peak error", "up to 4", lambda r: _get(
+            r, "sensitivity", "field_model", "10", "mean_peak_error_deg"), "reported"),
+        Check("sun sensor 10%: mean peak error", "~1", lambda r: _get(
+            r, "sensitivity", "sun_sensor", "10", "mean_peak_error_deg"), "reported"),
+        Check("EKF eclipse peak / sunlit RMS", "degrades", lambda r: _ratio(
+            _get(r, "eclipse", "ekf", "eclipse_max_deg"),
+            _get(r, "eclipse", "ekf", "sunlit_rms_deg")), "> 5",
+            lambda r: _get(r, "eclipse", "ekf", "eclipse_max_deg")
+            > 5 * _get(r, "eclipse", "ekf", "sunlit_rms_deg"), ""),
+        Check("MEKF eclipse peak (mean over seeds)", "—", lambda r: _get(
+            r, "eclipse", "mekf", "eclipse_max_deg"), "<= 2",
+            lambda r: _get(r, "eclipse", "mekf", "eclipse_max_deg") <= 2),
+        Check("MEKF eclipse peak (worst seed)", "—", lambda r: _get(
+            r, "eclipse", "mekf", "eclipse_max_worst_deg"), "<= 3",
+            lambda r: _get(r, "eclipse", "mekf", "eclipse_max_worst_deg") <= 3),
+        Check("10% field error: EKF / MEKF eclipse peak", "—", lambda r: _ratio(
+            _get(r, "eclipse", "ekf_field10", "eclipse_max_deg"),
+            _get(r, "eclipse", "mekf_field10", "eclipse_max_deg")), ">= 2.5",
+            lambda r: _get(r, "eclipse", "ekf_field10", "eclipse_max_deg")
+            >= 2.5 * _get(r, "eclipse", "mekf_field10", "eclipse_max_deg"), ""),
+    ],
+    "002": [
+        Check("gain multiplications, r = 6", "864", lambda r: _get(r, "op_counts", "r6", "mul"),
+              "= 864", lambda r: _get(r, "op_counts", "r6", "mul") == 864, ""),
+        Check("gain additions, r = 6", "792", lambda r: _get(r, "op_counts", "r6", "add"),
+              "= 792", lambda r: _get(r, "op_counts", "r6", "add") == 792, ""),
+        Check("gain multiplications, r = 3", "243", lambda r: _get(r, "op_counts", "r3", "mul"),
+              "= 243", lambda r: _get(r, "op_counts", "r3", "mul") == 243, ""),
+        Check("gain additions, r = 3", "207", lambda r: _get(r, "op_counts", "r3", "add"),
+              "= 207", lambda r: _get(r, "op_counts", "r3", "add") == 207, ""),
+        Check("observability rank, r = 3", "6", lambda r: _get(r, "observability_rank", "r3"),
+              "= 6", lambda r: _get(r, "observability_rank", "r3") == 6, ""),
+        Check("attitude RMS r = 3 / r = 6", "same", lambda r: _ratio(
+            _get(r, "accuracy", "r3", "attitude_rms_deg"),
+            _get(r, "accuracy", "r6", "attitude_rms_deg")), "<= 1.10",
+            lambda r: _get(r, "accuracy", "r3", "attitude_rms_deg")
+            <= 1.1 * _get(r, "accuracy", "r6", "attitude_rms_deg"), ""),
+        Check("update time r = 6 / r = 3", "3.6 (op counts)", lambda r: _ratio(
+            _get(r, "time_per_update_ns", "r6"), _get(r, "time_per_update_ns", "r3")), ">= 1.8",
+            lambda r: _get(r, "time_per_update_ns", "r6")
+            >= 1.8 * _get(r, "time_per_update_ns", "r3"), ""),
+        Check("step time r = 6 / r = 3", "—", lambda r: _ratio(
+            _get(r, "time_per_step_ns", "r6"), _get(r, "time_per_step_ns", "r3")), ">= 1.4",
+            lambda r: _get(r, "time_per_step_ns", "r6")
+            >= 1.4 * _get(r, "time_per_step_ns", "r3"), ""),
+    ],
+    "003": [
+        Check("per-frame max pitch error (angle-resampled)", "—", lambda r: _get(
+            r, "per_frame", "conversion", "resampled"), "<= 0.1",
+            lambda r: _get(r, "per_frame", "conversion", "resampled") <= 0.1),
+        Check("closed loop, MEMS gyros: worst max pitch error", "< 0.5 (promised)",
+              lambda r: max(c["max_pitch_error_deg"] for c in r["cases"]
+                            if c["mode"] == "closed_loop" and c["gyro"] == "mems"),
+              "< 0.5 on >= 2 scenes",
+              lambda r: len({c["scene"] for c in r["cases"] if c["mode"] == "closed_loop"
+                             and c["gyro"] == "mems" and c["max_pitch_error_deg"] < 0.5}) >= 2),
+        Check("SSD + sub-pixel: shift RMSE", "—", lambda r: _get(
+            r, "methods", "ssd_subpixel", "rmse_px"), "<= 0.05",
+            lambda r: _get(r, "methods", "ssd_subpixel", "rmse_px") <= 0.05, "px"),
+        Check("phase correlation time / SSD time", "—", lambda r: _ratio(
+            _get(r, "methods", "phase_correlation", "time_us"),
+            _get(r, "methods", "ssd_subpixel", "time_us")), ">= 10",
+            lambda r: _get(r, "methods", "phase_correlation", "time_us")
+            >= 10 * _get(r, "methods", "ssd_subpixel", "time_us"), ""),
+    ],
+    "004": [
+        Check("T = 100 s: peak acceleration error", "2.87", lambda r: _get(
+            r, "first_order", "T100", "peak_accel_error_deg"), "within 5% of analytic",
+            lambda r: abs(_get(r, "first_order", "T100", "peak_accel_error_deg")
+                          / _get(r, "first_order", "T100", "analytic_peak_accel_error_deg")
+                          - 1) <= 0.05),
+        Check("T = 100 s: drift error", "0.29", lambda r: _get(
+            r, "first_order", "T100", "drift_error_deg"), "within 5% of analytic",
+            lambda r: abs(_get(r, "first_order", "T100", "drift_error_deg")
+                          / _get(r, "first_order", "T100", "analytic_drift_error_deg")
+                          - 1) <= 0.05),
+        Check("T = 200 s: peak acceleration error", "1.43", lambda r: _get(
+            r, "first_order", "T200", "peak_accel_error_deg"), "within 5% of analytic",
+            lambda r: abs(_get(r, "first_order", "T200", "peak_accel_error_deg")
+                          / _get(r, "first_order", "T200", "analytic_peak_accel_error_deg")
+                          - 1) <= 0.05),
+        Check("T = 200 s: drift error", "0.57", lambda r: _get(
+            r, "first_order", "T200", "drift_error_deg"), "within 5% of analytic",
+            lambda r: abs(_get(r, "first_order", "T200", "drift_error_deg")
+                          / _get(r, "first_order", "T200", "analytic_drift_error_deg")
+                          - 1) <= 0.05),
+        Check("second order: variant 1 vs 2 peak acceleration error", "variant 1 better",
+              lambda r: _get(r, "second_order", "variant1", "peak_accel_error_deg"),
+              "< variant 2",
+              lambda r: _get(r, "second_order", "variant1", "peak_accel_error_deg")
+              < _get(r, "second_order", "variant2", "peak_accel_error_deg")),
+        Check("compensated peak acceleration error", "(next step)", lambda r: _get(
+            r, "compensated", "peak_accel_error_deg"), "<= 20% of uncompensated (T = 100 s)",
+            lambda r: _get(r, "compensated", "peak_accel_error_deg")
+            <= 0.2 * _get(r, "first_order", "T100", "peak_accel_error_deg")),
+    ],
+}
+
+
+def evaluate(paper: str, result: dict) -> list[dict]:
+    """Rows of the paper's table: label, paper, value, target, met (True/False/None), unit."""
+    rows = []
+    for c in CHECKS.get(paper, []):
+        try:
+            value = float(c.value(result))
+        except (KeyError, TypeError, ValueError, StopIteration, IndexError):
+            value = math.nan
+        met = None
+        if c.met is not None:
+            try:
+                met = bool(c.met(result))
+            except (KeyError, TypeError, ValueError, StopIteration, IndexError):
+                met = None
+        rows.append({"label": c.label, "paper": c.paper, "value": value, "target": c.target,
+                     "met": met, "unit": c.unit})
+    return rows
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1100px;margin:2em auto;
+padding:0 1em;color:#222} h1,h2{font-weight:600} table{border-collapse:collapse;margin:1em 0}
+td,th{border:1px solid #ccc;padding:4px 8px;text-align:left} th{background:#f3f3f3}
+.ok{color:#17702b;font-weight:600} .no{color:#b00020;font-weight:600} .na{color:#777}
+img{max-width:100%;border:1px solid #ddd;margin:0.5em 0} pre{background:#f7f7f7;padding:1em;
+overflow:auto;font-size:12px} nav a{margin-right:1em}
+"""
+
+
+# Reports a figure that failed to load on the browser console (the browser test reads it).
+_IMAGE_CHECK = ("<script>window.addEventListener('load',()=>{for(const i of document.images)"
+                "{if(!i.complete||i.naturalWidth===0)console.error('missing image: '+"
+                "i.getAttribute('src'))}})</script>")
+
+
+def _page(title: str, body: str) -> str:
+    return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<link rel='icon' href='data:,'>"
+            f"<title>{html.escape(title)}</title><style>{_CSS}</style></head>"
+            f"<body><nav><a href='index.html'>gnomon report</a></nav>{body}"
+            f"{_IMAGE_CHECK}</body></html>")
+
+
+def _fmt(v: float) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "—"
+    return f"{v:.4g}"
+
+
+def _met(m) -> str:
+    return {True: "<span class='ok'>yes</span>", False: "<span class='no'>no</span>"}.get(
+        m, "<span class='na'>—</span>")
+
+
+def _params_table(params: dict) -> str:
+    rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>"
+                   for k, v in params.items())
+    return f"<table><tr><th>parameter</th><th>value</th></tr>{rows}</table>"
+
+
+def build_report(out_dir: Path, results: dict, quick: bool = False) -> Path:
+    """Write ``index.html`` and one page per paper into ``out_dir``; returns the index path."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    index_rows = []
+    for paper, res in sorted(results.items()):
+        name = f"p{paper}"
+        fig_dir = out_dir / name
+        body = [f"<h1>Paper {paper}</h1><p>{html.escape(SUMMARY.get(paper, ''))}</p>"]
+        if quick:
+            body.append("<p><em>Quick mode: shortened runs and fewer seeds (for CI); run "
+                        "without --quick for the full reproduction.</em></p>")
+        if "error" in res:
+            body.append(f"<h2>Failed</h2><pre>{html.escape(res['error'])}</pre>")
+            met_count, total = 0, 0
+        else:
+            rows = evaluate(paper, res)
+            met_count = sum(r["met"] is True for r in rows)
+            total = sum(r["met"] is not None for r in rows)
+            table = "".join(
+                f"<tr><td>{html.escape(r['label'])}</td><td>{html.escape(r['paper'])}</td>"
+                f"<td>{_fmt(r['value'])}</td><td>{html.escape(r['unit'])}</td>"
+                f"<td>{html.escape(r['target'])}</td><td>{_met(r['met'])}</td></tr>"
+                for r in rows)
+            body.append("<h2>Paper vs gnomon</h2><table><tr><th>quantity</th>"
+                        "<th>paper's reported value</th><th>gnomon's value</th><th>unit</th>"
+                        f"<th>target</th><th>within target?</th></tr>{table}</table>")
+            params = res.get("scenario") or res.get("parameters")
+            if isinstance(params, dict) and params:
+                body.append("<h2>Scenario</h2>" + _params_table(params))
+        figs = sorted(fig_dir.glob("*.png")) if fig_dir.is_dir() else []
+        if figs:
+            body.append("<h2>Figures</h2>")
+            for f in figs:
+                rel = f"{name}/{f.name}"
+                body.append(f"<figure><img src='{html.escape(rel)}' alt='{html.escape(f.stem)}'>"
+                            f"<figcaption>{html.escape(f.stem.replace('_', ' '))}</figcaption>"
+                            "</figure>")
+        clean = {k: v for k, v in res.items() if k != "traceback"}
+        body.append("<h2>Metrics (the JSON of <code>gnomon reproduce "
+                    f"{paper} --json</code>)</h2><pre>"
+                    f"{html.escape(json.dumps(clean, indent=2, default=str))}</pre>")
+        (out_dir / f"{name}.html").write_text(_page(f"gnomon: paper {paper}", "".join(body)))
+        status = "failed" if "error" in res else f"{met_count} of {total} targets met"
+        index_rows.append(f"<tr><td><a href='{name}.html'>paper {paper}</a></td>"
+                          f"<td>{html.escape(SUMMARY.get(paper, '')[:140])}…</td>"
+                          f"<td>{status}</td></tr>")
+    index = ("<h1>gnomon: the papers reproduced</h1>"
+             "<table><tr><th>paper</th><th>system</th><th>status</th></tr>"
+             + "".join(index_rows) + "</table>")
+    path = out_dir / "index.html"
+    path.write_text(_page("gnomon report", index))
+    return path

@@ -1,0 +1,312 @@
+"""The scenario schema: every key a scenario file may hold, its default, type and unit.
+
+A scenario is a nested mapping; ``validate(user_dict)`` merges it over the
+defaults, rejecting unknown keys by their dotted name (``sensors.gyro.bias_deg``)
+and checking every leaf's type and range, then the cross-field rules (step
+divides duration, orbit above the atmosphere, inertia positive definite). Every
+error is one ``InputError`` naming the key, raised before any simulation.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime
+import math
+import numbers
+from typing import Any
+
+import numpy as np
+
+from gnomon.errors import InputError
+from gnomon.frames import parse_epoch
+
+__all__ = ["SCHEMA", "defaults", "validate", "flatten", "set_dotted", "get_dotted"]
+
+
+class Leaf:
+    """One scenario value: ``kind`` in float/int/bool/str/vec3/inertia/enum/number_or/opt_float,
+    a default, a unit and a one-line description."""
+
+    def __init__(self, kind: str, default: Any, unit: str = "", doc: str = "", *,
+                 choices: tuple = (), min: float | None = None, min_open: bool = False):
+        self.kind = kind
+        self.default = default
+        self.unit = unit
+        self.doc = doc
+        self.choices = choices
+        self.min = min
+        self.min_open = min_open
+
+    def check(self, key: str, v: Any) -> Any:
+        k = self.kind
+        bad = InputError
+        if k in ("float", "opt_float", "number_or"):
+            if v is None and k == "opt_float":
+                return None
+            if k == "number_or" and isinstance(v, str):
+                if v not in self.choices:
+                    raise bad(f"expected a number or one of {list(self.choices)}, got {v!r}",
+                              field=key)
+                return v
+            if isinstance(v, str):          # PyYAML reads '1.0e4' (no exponent sign) as text
+                try:
+                    v = float(v)
+                except ValueError:
+                    raise bad(f"expected a number, got {v!r}", field=key) from None
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise bad(f"expected a number, got {v!r}", field=key)
+            v = float(v)
+        elif k == "int":
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+                raise bad(f"expected an integer, got {v!r}", field=key)
+            v = int(v)
+        elif k == "bool":
+            if not isinstance(v, bool):
+                raise bad(f"expected true or false, got {v!r}", field=key)
+        elif k == "epoch":                  # YAML turns an unquoted ISO time into a datetime
+            if not isinstance(v, str | datetime.date):
+                raise bad(f"expected an ISO-8601 UTC time, got {v!r}", field=key)
+            try:
+                return parse_epoch(v).isoformat().replace("+00:00", "Z")
+            except InputError as err:
+                raise bad(err.message, field=key) from None
+        elif k == "str":
+            if not isinstance(v, str):
+                raise bad(f"expected a string, got {v!r}", field=key)
+        elif k == "enum":
+            if v not in self.choices:
+                raise bad(f"expected one of {list(self.choices)}, got {v!r}", field=key)
+        elif k == "vec3":                   # 3 numbers, or one number for all three axes
+            a = np.asarray(v, dtype=object)
+            if a.shape == ():
+                a = np.array([v, v, v], dtype=object)
+            if a.shape != (3,) or not all(isinstance(x, numbers.Real) and not isinstance(x, bool)
+                                          and math.isfinite(x) for x in a):
+                raise bad(f"expected 3 numbers (or one for all axes), got {v!r}", field=key)
+            return [float(x) for x in a]
+        elif k == "inertia":
+            from gnomon.dynamics import check_inertia
+
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise bad(f"expected 3 numbers or a 3x3 matrix, got {v!r}", field=key) from None
+            return check_inertia(arr, field=key).tolist()
+        if self.min is not None and isinstance(v, int | float) and not isinstance(v, bool):
+            if v < self.min or (self.min_open and v == self.min):
+                op = ">" if self.min_open else ">="
+                raise bad(f"must be {op} {self.min:g}, got {v!r}", field=key)
+        return v
+
+
+L = Leaf
+SCHEMA: dict = {
+    "name": L("str", "", doc="scenario name"),
+    "description": L("str", "", doc="free text"),
+    "epoch": L("epoch", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
+    "duration_s": L("float", 5900.0, "s", "length of the run", min=0, min_open=True),
+    "step_s": L("float", 1.0, "s", "sampling = integration step", min=0, min_open=True),
+    "seed": L("int", 0, doc="root seed (numpy SeedSequence) of every random draw", min=0),
+    "orbit": {
+        "kind": L("enum", "circular", choices=("circular", "kepler", "tle"),
+                  doc="circular/kepler: own propagator with J2 secular drift; tle: SGP4"),
+        "altitude_km": L("float", 650.0, "km", "circular: altitude; kepler: a - R_earth"),
+        "eccentricity": L("float", 0.0, "", "kepler only", min=0),
+        "inclination_deg": L("number_or", "sun_synchronous", "deg",
+                             "inclination or 'sun_synchronous'", choices=("sun_synchronous",)),
+        "raan_deg": L("opt_float", None, "deg", "RAAN in i; null: from ltan_h"),
+        "ltan_h": L("float", 18.0, "h", "local time of the ascending node (when raan_deg null)"),
+        "arg_perigee_deg": L("float", 0.0, "deg", "argument of perigee"),
+        "arg_latitude_deg": L("float", 0.0, "deg", "argument of latitude (argp + M) at epoch"),
+        "j2": L("bool", True, doc="J2 secular drift of node, perigee, mean anomaly"),
+        "tle_line1": L("str", "", doc="TLE line 1 (kind: tle)"),
+        "tle_line2": L("str", "", doc="TLE line 2 (kind: tle)"),
+    },
+    "environment": {
+        "field_model": L("enum", "igrf", choices=("igrf", "dipole"),
+                         doc="truth field: IGRF-14 or its tilted dipole (degree 1)"),
+        "field_degree": L("int", 13, doc="IGRF truncation degree (igrf only)", min=1),
+        "field_error": {
+            "kind": L("enum", "none", choices=("none", "scale", "tilt", "component", "gauss"),
+                      doc="error of the on-board field model (extra b_o_model_nT)"),
+            "level_pct": L("float", 0.0, "%", "error level", min=0),
+        },
+        "sun_model": L("enum", "almanac", choices=("almanac", "orbit_normal"),
+                       doc="almanac: real Sun; orbit_normal: Sun fixed along the orbit "
+                       "normal (-y_o)"),
+        "shadow": L("enum", "conical", choices=("conical", "none"),
+                    doc="Earth shadow model (illumination fraction)"),
+    },
+    "spacecraft": {
+        "mass_kg": L("float", 30.0, "kg", "mass (informational)", min=0, min_open=True),
+        "inertia_kg_m2": L("inertia", [[0.62, 0.01, -0.005], [0.01, 0.58, 0.008],
+                                       [-0.005, 0.008, 0.45]], "kg m^2",
+                           "3 principal moments or a full 3x3 tensor"),
+        "inertia_error_pct": L("float", 0.0, "%",
+                               "error of the inertia given to estimators (extra "
+                               "inertia_model_kg_m2)", min=0),
+        "residual_dipole_A_m2": L("vec3", [0.0, 0.0, 0.0], "A m^2", "residual magnetic dipole"),
+        "gravity_gradient": L("bool", True, doc="gravity-gradient torque on"),
+        "wheels": {
+            "momentum_Nms": L("vec3", [0.0, 0.0, 0.0], "N m s", "initial wheel momentum in b"),
+            "max_momentum_Nms": L("float", 0.02, "N m s", "per wheel", min=0),
+            "max_torque_Nm": L("float", 0.002, "N m", "per wheel", min=0),
+        },
+        "magnetorquers": {
+            "max_dipole_A_m2": L("float", 0.5, "A m^2", "per axis", min=0),
+        },
+    },
+    "initial": {
+        "attitude_euler_deg": L("vec3", [0.0, 0.0, 0.0], "deg",
+                                "q_ob at t=0 as [roll, pitch, yaw] (z-y'-x'')"),
+        "rate_ob_deg_s": L("vec3", [0.0, 0.0, 0.0], "deg/s", "w_ob_b at t=0"),
+    },
+    "controller": {
+        "mode": L("enum", "magnetic_pd",
+                  choices=("none", "bdot", "magnetic_pd", "bdot_then_pd", "wheel_pd"),
+                  doc="attitude control law (gnomon.dynamics)"),
+        "k_bdot": L("float", 1.0e6, "A m^2 s/T", "B-dot gain", min=0),
+        "kp_Nm": L("float", 5e-6, "N m", "pointing gain", min=0),
+        "kd_Nms": L("float", 2.5e-3, "N m s", "rate damping gain", min=0),
+        "switch_rate_deg_s": L("float", 0.2, "deg/s", "B-dot -> pointing hand-over", min=0),
+        "k_dump_1_s": L("float", 1e-3, "1/s", "wheel momentum dumping gain", min=0),
+    },
+    "sensors": {
+        "gyro": {
+            "arw_deg_rt_h": L("float", 0.0, "deg/sqrt(h)", "angle random walk", min=0),
+            "bias_deg_s": L("vec3", [0.0, 0.0, 0.0], "deg/s", "constant bias"),
+            "bias_rw_deg_s_rt_s": L("float", 0.0, "deg/s/sqrt(s)", "bias random walk", min=0),
+            "step_deg_s": L("vec3", [0.0, 0.0, 0.0], "deg/s", "drift step (Heaviside)"),
+            "step_time_orbits": L("opt_float", None, "orbits", "time of the step in orbits"),
+            "step_time_s": L("opt_float", None, "s", "time of the step in seconds"),
+        },
+        "magnetometer": {
+            "noise_nT": L("float", 0.0, "nT", "white noise sigma per axis", min=0),
+            "bias_nT": L("vec3", [0.0, 0.0, 0.0], "nT", "constant bias"),
+            "scale_pct": L("float", 0.0, "%", "scale-factor sigma (drawn once)", min=0),
+            "misalignment_deg": L("float", 0.0, "deg", "misalignment sigma (drawn once)", min=0),
+        },
+        "sun_sensor": {
+            "noise_deg": L("float", 0.0, "deg", "angular noise sigma per axis", min=0),
+            "boresight_b": L("vec3", [0.0, 1.0, 0.0], "", "boresight direction in b"),
+            "fov_half_angle_deg": L("float", 90.0, "deg", "field-of-view cone half angle",
+                                    min=0),
+            "min_illumination": L("float", 0.5, "", "valid when illumination >= this", min=0),
+        },
+        "accelerometer": {
+            "enabled": L("bool", False, doc="record an accelerometer"),
+            "noise_m_s2": L("float", 0.0, "m/s^2", "white noise sigma", min=0),
+            "bias_m_s2": L("vec3", [0.0, 0.0, 0.0], "m/s^2", "constant bias"),
+        },
+    },
+}
+
+
+def defaults(schema: dict = SCHEMA) -> dict:
+    """The default scenario as a nested dict."""
+    return {k: (defaults(v) if isinstance(v, dict) else copy.deepcopy(v.default))
+            for k, v in schema.items()}
+
+
+def flatten(d: dict, prefix: str = "") -> dict:
+    """Nested dict -> {dotted key: value}."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _leaf(key: str):
+    node: Any = SCHEMA
+    parts = key.split(".")
+    for i, p in enumerate(parts):
+        if not isinstance(node, dict) or p not in node:
+            where = ".".join(parts[: i + 1])
+            known = sorted(node) if isinstance(node, dict) else []
+            raise InputError(f"unknown scenario key {where!r}" +
+                             (f"; known here: {', '.join(known)}" if known else ""), field=where)
+        node = node[p]
+    return node
+
+
+def get_dotted(d: dict, key: str):
+    node = d
+    for p in key.split("."):
+        node = node[p]
+    return node
+
+
+def set_dotted(d: dict, key: str, value) -> None:
+    """Set ``d[a][b][c] = value`` for ``key = 'a.b.c'``; the key must name a schema leaf."""
+    node = _leaf(key)
+    if isinstance(node, dict):
+        raise InputError(f"{key!r} is a section, not a value", field=key)
+    parts = key.split(".")
+    cur = d
+    for p in parts[:-1]:
+        cur = cur.setdefault(p, {})
+    cur[parts[-1]] = value
+
+
+def _merge(user: dict, schema: dict, out: dict, prefix: str) -> None:
+    if not isinstance(user, dict):
+        raise InputError(f"expected a mapping, got {user!r}", field=prefix.rstrip(".") or None)
+    for k, v in user.items():
+        key = f"{prefix}{k}"
+        if k not in schema:
+            raise InputError(f"unknown scenario key {key!r}; known here: "
+                             f"{', '.join(sorted(schema))}", field=key)
+        if isinstance(schema[k], dict):
+            _merge(v, schema[k], out[k], key + ".")
+        else:
+            out[k] = schema[k].check(key, v)
+
+
+def validate(user: dict) -> dict:
+    """Merge ``user`` over the defaults and validate it; returns the full nested dict."""
+    from gnomon.environment.orbit import MIN_ALTITUDE_M, R_EARTH, TLEOrbit
+
+    cfg = defaults()
+    _merge(user or {}, SCHEMA, cfg, "")
+    # the defaults themselves are checked too (inertia as a full matrix, etc.)
+    for key, value in flatten(cfg).items():
+        set_dotted(cfg, key, _leaf(key).check(key, value))
+    n = cfg["duration_s"] / cfg["step_s"]
+    if abs(n - round(n)) > 1e-9 * max(1.0, n):
+        raise InputError(f"step {cfg['step_s']:g} s does not divide the duration "
+                         f"{cfg['duration_s']:g} s", field="step_s")
+    o = cfg["orbit"]
+    if o["kind"] in ("circular", "kepler"):
+        perigee = (o["altitude_km"] * 1e3 + R_EARTH) * (1.0 - o["eccentricity"]) - R_EARTH
+        if perigee < MIN_ALTITUDE_M:
+            raise InputError(f"orbit below the atmosphere: perigee altitude "
+                             f"{perigee / 1e3:.1f} km < {MIN_ALTITUDE_M / 1e3:.0f} km",
+                             field="orbit.altitude_km")
+        if o["kind"] == "circular" and o["eccentricity"] != 0.0:
+            raise InputError("a circular orbit has eccentricity 0 (use kind: kepler)",
+                             field="orbit.eccentricity")
+        if o["eccentricity"] >= 1.0:
+            raise InputError(f"must be < 1, got {o['eccentricity']}", field="orbit.eccentricity")
+    else:
+        if not o["tle_line1"] or not o["tle_line2"]:
+            raise InputError("kind 'tle' needs tle_line1 and tle_line2", field="orbit.tle_line1")
+        TLEOrbit(o["tle_line1"], o["tle_line2"])
+    inc = o["inclination_deg"]
+    if not isinstance(inc, str) and not 0.0 <= inc <= 180.0:
+        raise InputError(f"must be in [0, 180] deg, got {inc:g}", field="orbit.inclination_deg")
+    if np.linalg.norm(cfg["sensors"]["sun_sensor"]["boresight_b"]) == 0.0:
+        raise InputError("must be a non-zero vector", field="sensors.sun_sensor.boresight_b")
+    if cfg["sensors"]["sun_sensor"]["min_illumination"] > 1.0:
+        raise InputError("must be in [0, 1]", field="sensors.sun_sensor.min_illumination")
+    g = cfg["sensors"]["gyro"]
+    if g["step_time_orbits"] is not None and g["step_time_s"] is not None:
+        raise InputError("give step_time_orbits or step_time_s, not both",
+                         field="sensors.gyro.step_time_s")
+    if cfg["environment"]["field_degree"] > 13:
+        raise InputError(f"IGRF goes to degree 13, got {cfg['environment']['field_degree']}",
+                         field="environment.field_degree")
+    return cfg

@@ -1,0 +1,174 @@
+"""Run a scenario: orbit -> environment (field, Sun, shadow) -> attitude dynamics -> sensors.
+
+The output :class:`gnomon.recording.Recording` (frames ``{"reference": "o", "body": "b"}``):
+
+* ``gyro`` (N, 3) rad/s: measured ``w_ib_b``; ``mag`` (N, 3) nT in b; ``sun`` (N, 3)
+  unit vectors in b with ``sun_valid``; ``accel`` when enabled.
+* ``q_true`` (N, 4): ``q_ob`` (orbital from body), [w, x, y, z].
+* ``extra`` (all (N, ...)): ``w_ob_b``, ``w_ib_b`` (truth, rad/s), ``w_io_o`` (rate of o
+  relative to i, in o, rad/s), ``b_o_nT`` (true field in o), ``b_o_model_nT`` (field in
+  o from the on-board model, with the scenario's field-model error), ``b_b_nT`` (true
+  field in b), ``s_o``, ``s_b`` (true Sun unit vectors), ``eclipse`` (illumination
+  fraction, 1 = sunlit), ``gyro_bias_rad_s`` (bias truth), ``q_io``, ``r_i_m``,
+  ``v_i_m``, ``h_wheel_b_Nms``, ``hdot_wheel_b_Nm``, ``m_dipole_b_Am2``,
+  ``torque_ctrl_b_Nm`` (magnetorquer torque), ``torque_dist_b_Nm``,
+  ``inertia_kg_m2`` and ``inertia_model_kg_m2`` (N, 3, 3; the model one carries the
+  scenario's inertia error), ``time_orbits``.
+
+Random draws: ``numpy.random.SeedSequence(seed).spawn(6)`` -> gyro, magnetometer,
+sun sensor, accelerometer, field-model error, inertia error; each sensor has its
+own generator so changing one sensor's noise leaves the others' draws unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gnomon.dynamics import integrate_attitude
+from gnomon.environment.magnetic import field_i_nT, field_model
+from gnomon.environment.orbit import (
+    R_EARTH,
+    KeplerOrbit,
+    TLEOrbit,
+    raan_from_ltan,
+    sun_synchronous_inclination,
+)
+from gnomon.environment.sun import illumination_fraction, sun_position_i
+from gnomon.frames import orbital_frame_dcm, parse_epoch, w_io_o_of_orbit
+from gnomon.recording import Recording
+from gnomon.rotation import quat_conj, quat_from_dcm, quat_from_euler, quat_mul, quat_rotate
+from gnomon.sensors import accelerometer_model, gyro_model, magnetometer_model, sun_sensor_model
+
+__all__ = ["build_orbit", "simulate"]
+
+_D2R = np.pi / 180.0
+
+
+def build_orbit(cfg: dict):
+    """The orbit object (``KeplerOrbit`` or ``TLEOrbit``) of a validated scenario config."""
+    o = cfg["orbit"]
+    epoch = parse_epoch(cfg["epoch"])
+    if o["kind"] == "tle":
+        return TLEOrbit(o["tle_line1"], o["tle_line2"], epoch=epoch)
+    a = R_EARTH + o["altitude_km"] * 1e3
+    e = o["eccentricity"]
+    inc = (sun_synchronous_inclination(a, e) if o["inclination_deg"] == "sun_synchronous"
+           else o["inclination_deg"] * _D2R)
+    raan = o["raan_deg"] * _D2R if o["raan_deg"] is not None else raan_from_ltan(epoch,
+                                                                                o["ltan_h"])
+    argp = o["arg_perigee_deg"] * _D2R
+    m0 = o["arg_latitude_deg"] * _D2R - argp
+    return KeplerOrbit(a, e, inc, raan, argp, m0, epoch, j2=o["j2"])
+
+
+def _inertia_model(J, pct, rng):
+    if pct == 0.0:
+        return J.copy()
+    d = np.sqrt(np.maximum(1.0 + pct / 100.0 * rng.standard_normal(3), 0.05))
+    return d[:, None] * J * d[None, :]
+
+
+def simulate(scenario, rng_seed: int | None = None) -> Recording:
+    """Simulate a validated :class:`~gnomon.scenarios.Scenario`; ``rng_seed`` overrides its seed."""
+    cfg = scenario.config
+    seed = cfg["seed"] if rng_seed is None else int(rng_seed)
+    g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))
+    epoch = parse_epoch(cfg["epoch"])
+    dt = cfg["step_s"]
+    n = int(round(cfg["duration_s"] / dt)) + 1
+    t = np.arange(n) * dt
+    th = np.arange(2 * n - 1) * (dt / 2.0)           # half-step grid for RK4
+
+    orbit = build_orbit(cfg)
+    r_h, v_h = orbit.propagate(th)
+    env = cfg["environment"]
+    truth_field = field_model(env["field_model"],
+                              nmax=env["field_degree"] if env["field_model"] == "igrf" else 1)
+    b_h_i = field_i_nT(truth_field, epoch, th, r_h)
+    r_i, v_i, b_i = r_h[::2], v_h[::2], b_h_i[::2]
+
+    R_io = orbital_frame_dcm(r_i, v_i)
+    q_io = quat_from_dcm(R_io)
+    wio = w_io_o_of_orbit(orbit.propagate, t)
+
+    sc = cfg["spacecraft"]
+    J = np.asarray(sc["inertia_kg_m2"], float)
+    ini = cfg["initial"]
+    q_ob0 = quat_from_euler(np.asarray(ini["attitude_euler_deg"]) * _D2R)
+    w_ob0 = np.asarray(ini["rate_ob_deg_s"]) * _D2R
+    q_ib0 = quat_mul(q_io[0], q_ob0)
+    w_ib0 = w_ob0 + quat_rotate(quat_conj(q_ob0), wio[0])
+    ctl = cfg["controller"]
+    hist = integrate_attitude(
+        q_ib0, w_ib0, np.asarray(sc["wheels"]["momentum_Nms"], float), J, dt, r_h,
+        b_h_i * 1e-9, q_io, wio, mode=ctl["mode"], k_bdot=ctl["k_bdot"], kp=ctl["kp_Nm"],
+        kd=ctl["kd_Nms"], switch_rate=ctl["switch_rate_deg_s"] * _D2R,
+        k_dump=ctl["k_dump_1_s"], max_dipole=sc["magnetorquers"]["max_dipole_A_m2"],
+        max_wheel_torque=sc["wheels"]["max_torque_Nm"],
+        max_wheel_momentum=sc["wheels"]["max_momentum_Nms"],
+        residual_dipole=sc["residual_dipole_A_m2"], gravity_gradient=sc["gravity_gradient"])
+    q_ib, w_ib = hist.q_ib, hist.w_ib_b
+    q_ob = quat_mul(quat_conj(q_io), q_ib)
+    w_ob = w_ib - quat_rotate(quat_conj(q_ob), wio)
+
+    # field: truth in o and b; on-board model (possibly in error) in o
+    q_oi = quat_conj(q_io)
+    b_o = quat_rotate(q_oi, b_i)
+    b_b = quat_rotate(quat_conj(q_ib), b_i)
+    fe = env["field_error"]
+    if fe["kind"] == "none" or fe["level_pct"] == 0.0:
+        b_o_model = b_o.copy()
+    else:
+        onboard = field_model(env["field_model"], fe["kind"], fe["level_pct"], g_field,
+                              nmax=env["field_degree"] if env["field_model"] == "igrf" else 1)
+        b_o_model = quat_rotate(q_oi, field_i_nT(onboard, epoch, t, r_i))
+
+    # Sun and shadow
+    r_sun = sun_position_i(epoch, t)
+    if env["sun_model"] == "orbit_normal":
+        s_i = -R_io[..., :, 1]                      # -y_o = +orbit normal (dawn-dusk, LTAN 18 h)
+    else:
+        s_i = r_sun - r_i
+        s_i /= np.linalg.norm(s_i, axis=1, keepdims=True)
+    illum = (np.ones(n) if env["shadow"] == "none"
+             else illumination_fraction(r_i, r_sun))
+    s_o = quat_rotate(q_oi, s_i)
+    s_b = quat_rotate(quat_conj(q_ib), s_i)
+
+    # sensors
+    gy = cfg["sensors"]["gyro"]
+    period = orbit.period_s
+    step_t = (gy["step_time_s"] if gy["step_time_s"] is not None else
+              gy["step_time_orbits"] * period if gy["step_time_orbits"] is not None else np.inf)
+    gyro, bias = gyro_model(t, w_ib, g_gyro, arw_rad_rt_s=gy["arw_deg_rt_h"] * _D2R / 60.0,
+                            bias_rad_s=np.asarray(gy["bias_deg_s"]) * _D2R,
+                            bias_rw_rad_s_rt_s=gy["bias_rw_deg_s_rt_s"] * _D2R,
+                            step_rad_s=np.asarray(gy["step_deg_s"]) * _D2R, step_time_s=step_t)
+    mg = cfg["sensors"]["magnetometer"]
+    mag, _ = magnetometer_model(b_b, g_mag, mg["noise_nT"], mg["bias_nT"], mg["scale_pct"],
+                                mg["misalignment_deg"])
+    ss = cfg["sensors"]["sun_sensor"]
+    sun, valid = sun_sensor_model(s_b, illum, g_sun, ss["noise_deg"], ss["boresight_b"],
+                                  ss["fov_half_angle_deg"], ss["min_illumination"])
+    ac = cfg["sensors"]["accelerometer"]
+    accel = (accelerometer_model(n, g_acc, ac["noise_m_s2"], ac["bias_m_s2"])
+             if ac["enabled"] else None)
+
+    J_model = _inertia_model(J, sc["inertia_error_pct"], g_inertia)
+    torque_ctrl = np.cross(hist.m_b, b_b * 1e-9)
+    extra = {
+        "w_ob_b": w_ob, "w_ib_b": w_ib, "w_io_o": wio, "b_o_nT": b_o,
+        "b_o_model_nT": b_o_model, "b_b_nT": b_b, "s_o": s_o, "s_b": s_b, "eclipse": illum,
+        "gyro_bias_rad_s": bias, "q_io": q_io, "r_i_m": r_i, "v_i_m": v_i,
+        "h_wheel_b_Nms": hist.h_b, "hdot_wheel_b_Nm": hist.hdot_b,
+        "m_dipole_b_Am2": hist.m_b, "torque_ctrl_b_Nm": torque_ctrl,
+        "torque_dist_b_Nm": hist.torque_dist_b,
+        "inertia_kg_m2": np.broadcast_to(J, (n, 3, 3)).copy(),
+        "inertia_model_kg_m2": np.broadcast_to(J_model, (n, 3, 3)).copy(),
+        "time_orbits": t / period,
+    }
+    return Recording(t=t, gyro=gyro, accel=accel, mag=mag, mag_unit="nT", sun=sun,
+                     sun_valid=valid, q_true=q_ob, frames={"reference": "o", "body": "b"},
+                     source=f"gnomon.simulate {cfg['name'] or scenario.source} seed={seed}",
+                     extra=extra)

@@ -1,0 +1,1 @@
+"""Small simulators that produce ``Recording`` objects for the reproductions."""

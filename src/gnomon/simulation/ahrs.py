@@ -1,0 +1,167 @@
+"""Strapdown AHRS simulation: smooth random rotations and MEMS gyro / accelerometer / magnetometer.
+
+Produces a ``Recording`` in the seed-002 frames: navigation frame ENU (a
+resting accelerometer reads ``[0, 0, +g]``, the Earth field is ``[0, H, -Z]``),
+truth ``q_true = q_nb`` (ENU from body). Used by ``gnomon.reproduce.p002`` to
+compare the full and the reduced measurement model on identical data.
+
+Truth: the body rate ``w_b(t)`` (rad/s, body) is a sum of sinusoids per axis
+with random frequencies and phases (smooth, band-limited, scaled to a given
+RMS); the attitude is integrated from it with ``substeps`` exact
+exponential steps per sample interval. Sensors (per sample k, interval
+``[t_{k-1}, t_k]``):
+
+* gyro: ``w_b`` at the interval midpoint + bias + white noise
+  (density ``gyro_noise`` rad/s/√Hz → std ``gyro_noise·√fs``); the bias is a
+  constant drawn with std ``gyro_bias_std`` per axis plus a random walk
+  (``bias_rw`` rad/s/√s);
+* accelerometer: ``C_bn (g_n + a_lin_n) + noise`` (std ``accel_noise`` m/s²
+  per sample); ``a_lin_n`` optional smooth linear acceleration of RMS
+  ``linear_accel_rms`` per axis;
+* magnetometer (µT): ``C_bn (m_n + d_n) + noise`` (std ``mag_noise_uT``), field
+  magnitude ``field_uT`` and inclination ``inclination_deg``; ``d_n`` an optional
+  disturbance of magnitude ``mag_disturbance_uT`` (smooth, random direction),
+  active between ``disturbance_window_s``.
+
+The true bias is returned in ``extra['gyro_bias_rad_s']`` (N, 3) and the true
+rate in ``extra['w_true_rad_s']``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gnomon.errors import InputError
+from gnomon.recording import Recording
+from gnomon.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
+
+__all__ = ["AhrsSimParams", "simulate_ahrs", "smooth_random_signal"]
+
+
+@dataclass(frozen=True)
+class AhrsSimParams:
+    """Scenario of ``simulate_ahrs`` (SI units; MEMS-grade defaults)."""
+
+    duration_s: float = 120.0          # s
+    rate_hz: float = 100.0             # Hz
+    rate_rms: float = 0.5              # rad/s, RMS body rate per axis
+    rate_band_hz: tuple = (0.02, 0.3)  # Hz, frequency band of the rotation
+    n_harmonics: int = 6               # sinusoids per axis
+    rest_s: float = 0.0                # s at rest at the start
+    substeps: int = 8                  # truth integration steps per sample
+    gyro_noise: float = 3e-4           # rad/s/√Hz (0.017 °/s/√Hz)
+    gyro_bias_std: float = 0.01        # rad/s, constant bias per axis (0.57 °/s)
+    bias_rw: float = 2e-5              # rad/s/√s
+    accel_noise: float = 0.02          # m/s² per sample
+    mag_noise_uT: float = 0.3          # µT per sample
+    gravity: float = 9.81              # m/s²
+    field_uT: float = 50.0             # µT
+    inclination_deg: float = 60.0      # deg, tan I = Z/H
+    linear_accel_rms: float = 0.0      # m/s² per axis (0: none)
+    mag_disturbance_uT: float = 0.0    # µT (0: none)
+    disturbance_window_s: tuple = (0.0, float("inf"))  # s, when the disturbances act
+
+    def validate(self) -> None:
+        for name in ("duration_s", "rate_hz", "gravity", "field_uT"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"must be > 0, got {getattr(self, name)!r}", field=name)
+        for name in ("rate_rms", "rest_s", "gyro_noise", "gyro_bias_std", "bias_rw",
+                     "accel_noise", "mag_noise_uT", "linear_accel_rms", "mag_disturbance_uT"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"must be >= 0, got {getattr(self, name)!r}", field=name)
+        if not 0 <= self.inclination_deg < 90:
+            raise InputError(f"must be in [0, 90), got {self.inclination_deg!r}",
+                             field="inclination_deg")
+        if self.substeps < 1 or self.n_harmonics < 1:
+            raise InputError("must be >= 1", field="substeps/n_harmonics")
+
+
+def smooth_random_signal(t, rms, band_hz, n_harmonics, rng: np.random.Generator, dim=3):
+    """Sum of ``n_harmonics`` sinusoids per component, frequencies uniform in ``band_hz``,
+    random phases, scaled to the given RMS; returns a callable ``f(t) -> (len(t), dim)``
+    and its value at ``t``."""
+    f = rng.uniform(band_hz[0], band_hz[1], (n_harmonics, dim))
+    ph = rng.uniform(0, 2 * np.pi, (n_harmonics, dim))
+    amp = rng.uniform(0.5, 1.0, (n_harmonics, dim))
+    amp *= rms * np.sqrt(2.0) / np.sqrt((amp**2).sum(0))
+
+    def fun(tt):
+        tt = np.asarray(tt, float)[:, None, None]
+        return (amp * np.sin(2 * np.pi * f * tt + ph)).sum(1)
+
+    return fun, fun(t)
+
+
+def _qmul(p, q):
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
+
+
+def simulate_ahrs(params: AhrsSimParams | None, rng: np.random.Generator) -> Recording:
+    """Simulate a strapdown AHRS run (see the module docstring); ``params`` None: defaults.
+
+    All randomness (rotation profile, initial attitude, biases, noise, disturbances)
+    comes from ``rng``, so ``(params, seed)`` describes a run completely.
+    """
+    p = params or AhrsSimParams()
+    p.validate()
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError("rng must be a numpy.random.Generator")
+    fs = p.rate_hz
+    n = int(round(p.duration_s * fs)) + 1
+    t = np.arange(n) / fs
+    dt = 1.0 / fs
+    rate_fun, _ = smooth_random_signal(t, p.rate_rms, p.rate_band_hz, p.n_harmonics, rng)
+    gate = (t >= p.rest_s).astype(float)
+
+    def w_of(tt):
+        return rate_fun(tt) * (np.asarray(tt) >= p.rest_s)[:, None]
+
+    # truth attitude
+    q0 = quat_from_euler(rng.uniform([-0.3, -0.3, -np.pi], [0.3, 0.3, np.pi]))
+    h = dt / p.substeps
+    tsub = t[:-1, None] + (np.arange(p.substeps) + 0.5)[None, :] * h      # midpoints
+    dq = quat_from_rotvec(w_of(tsub.ravel()).reshape(n - 1, p.substeps, 3) * h)
+    step = dq[:, 0]
+    for s in range(1, p.substeps):
+        step = quat_mul(step, dq[:, s])
+    q = np.empty((n, 4))
+    q[0] = q0
+    for k in range(n - 1):
+        qk = _qmul(q[k], step[k])
+        q[k + 1] = qk / np.sqrt(qk @ qk)
+    C_bn = np.swapaxes(dcm_from_quat(q), -1, -2)
+
+    # gyro: midpoint rate of the preceding interval (first sample: rate at t0)
+    t_mid = np.concatenate([[t[0]], t[1:] - 0.5 * dt])
+    w_true = w_of(t_mid)
+    bias = (rng.normal(0, p.gyro_bias_std, 3)
+            + np.cumsum(rng.normal(0, p.bias_rw * np.sqrt(dt), (n, 3)), 0))
+    gyro = w_true + bias + rng.normal(0, p.gyro_noise * np.sqrt(fs), (n, 3))
+
+    active = ((t >= p.disturbance_window_s[0]) & (t < p.disturbance_window_s[1]))[:, None]
+    g_n = np.array([0.0, 0.0, p.gravity])
+    acc_n = np.broadcast_to(g_n, (n, 3)).copy()
+    if p.linear_accel_rms > 0:
+        _, a_lin = smooth_random_signal(t, p.linear_accel_rms, (0.1, 1.0), 4, rng)
+        acc_n += a_lin * active * gate[:, None]
+    accel = np.einsum("nij,nj->ni", C_bn, acc_n) + rng.normal(0, p.accel_noise, (n, 3))
+
+    inc = np.radians(p.inclination_deg)
+    m_n = np.broadcast_to([0.0, p.field_uT * np.cos(inc), -p.field_uT * np.sin(inc)],
+                          (n, 3)).copy()
+    if p.mag_disturbance_uT > 0:
+        _, d = smooth_random_signal(t, 1.0, (0.01, 0.1), 3, rng)
+        d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        m_n += p.mag_disturbance_uT * d * active
+    mag = np.einsum("nij,nj->ni", C_bn, m_n) + rng.normal(0, p.mag_noise_uT, (n, 3))
+
+    return Recording(
+        t=t, gyro=gyro, accel=accel, mag=mag, mag_unit="uT", q_true=q,
+        frames={"reference": "ENU", "body": "body"}, source="gnomon.simulation.ahrs",
+        extra={"gyro_bias_rad_s": bias, "w_true_rad_s": w_true},
+    )

@@ -1,0 +1,98 @@
+"""The HTML report: tables from the result dicts, and every page checked in headless Chromium.
+
+The browser test needs Debian's ``chromium`` (``.ci/run`` installs it); where it is absent
+the test is skipped with a message saying so — it never passes silently.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from gnomon.report.html import build_report, evaluate
+
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                  "--no-first-run", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--enable-logging=stderr",
+                  "--v=0", "--window-size=1200,1600"]
+
+
+def _fake_results(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    (tmp_path / "p004").mkdir()
+    fig, ax = plt.subplots()
+    ax.plot(np.arange(10))
+    fig.savefig(tmp_path / "p004" / "drift.png")
+    plt.close(fig)
+    r004 = {"paper": "004",
+            "first_order": {"T100": {"peak_accel_error_deg": 2.80,
+                                     "analytic_peak_accel_error_deg": 2.794,
+                                     "drift_error_deg": 0.40, "analytic_drift_error_deg": 0.2865}},
+            "second_order": {"variant1": {"peak_accel_error_deg": 1.3},
+                             "variant2": {"peak_accel_error_deg": 3.9}},
+            "compensated": {"peak_accel_error_deg": 0.05}}
+    return {"004": r004, "002": {"paper": "002", "error": "RuntimeError: boom"}}
+
+
+def test_table_rows_are_computed_from_the_results(tmp_path):
+    rows = {r["label"]: r for r in evaluate("004", _fake_results(tmp_path)["004"])}
+    peak = rows["T = 100 s: peak acceleration error"]
+    assert peak["value"] == 2.80 and peak["met"] is True
+    drift = rows["T = 100 s: drift error"]
+    assert drift["met"] is False  # 0.40 vs 0.2865 is 40% off
+    assert rows["T = 200 s: drift error"]["met"] is None  # missing in the result: no verdict
+    assert np.isnan(rows["T = 200 s: drift error"]["value"])
+
+
+def _chromium():
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def test_report_pages_open_in_headless_chromium(tmp_path):
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("Chromium not installed (Debian: apt-get install chromium): "
+                    "browser check of the report NOT run")
+    build_report(tmp_path, _fake_results(tmp_path))
+    pages = sorted(tmp_path.glob("*.html"))
+    assert {p.name for p in pages} == {"index.html", "p002.html", "p004.html"}
+    shots = tmp_path / "screenshots"
+    shots.mkdir()
+    for page in pages:
+        shot = shots / f"{page.stem}.png"
+        p = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'ud'}",
+                            f"--screenshot={shot}", page.as_uri()],
+                           capture_output=True, text=True, timeout=120,
+                           env={**os.environ, "HOME": str(tmp_path)})
+        console = [line for line in p.stderr.splitlines() if ":CONSOLE" in line]
+        assert console == [], console
+        assert shot.stat().st_size > 5000, page
+    html = (tmp_path / "p004.html").read_text()
+    assert "p004/drift.png" in html and "2.8" in html
+    assert "boom" in (tmp_path / "p002.html").read_text()
+
+
+def test_missing_image_is_reported_by_the_browser(tmp_path):
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("Chromium not installed: browser check NOT run")
+    build_report(tmp_path, _fake_results(tmp_path))
+    page = tmp_path / "p004.html"
+    page.write_text(page.read_text().replace("p004/drift.png", "p004/nothere.png"))
+    p = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'ud'}",
+                        f"--screenshot={tmp_path / 's.png'}", page.as_uri()],
+                       capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "HOME": str(tmp_path)})
+    assert any("missing image: p004/nothere.png" in line for line in p.stderr.splitlines())
+    json.dumps(evaluate("004", {}))  # an empty result still gives a serialisable table
