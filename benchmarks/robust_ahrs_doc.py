@@ -1,4 +1,5 @@
-"""Fill docs/estimators/realworld-ahrs.md from its template and the computed JSON files.
+"""Fill docs/estimators/realworld-ahrs.md from benchmarks/robust_ahrs_doc_template.md and the
+computed JSON files.
 
     PYTHONPATH=src python benchmarks/robust_ahrs_doc.py
 
@@ -67,7 +68,7 @@ def main() -> str:
           f"VQF {speed['vqf_updateBatch_samples_per_s'] / 1e6:.2f} million samples/s "
           f"(ratio {speed['ratio']:.2f}; {speed['samples']} samples; the machine is shared, "
           f"so absolute numbers vary)")
-    text = (ROOT / "docs" / "estimators" / "realworld-ahrs.template.md").read_text()
+    text = (ROOT / "benchmarks" / "robust_ahrs_doc_template.md").read_text()
     for key, val in (("{GROUP_TABLE}", group_table), ("{MEANS}", means), ("{WORST}", worst_s),
                      ("{ABLATION_TABLE}", abl_t), ("{TUNING_TABLE}", "\n".join(tl)),
                      ("{LOGO_TABLE}", "\n".join(lg)), ("{SPEED}", sp)):
