@@ -36,7 +36,7 @@ from gnomon.recording import Recording
 __all__ = ["run_broad", "score_broad", "DEFAULT_FILTERS"]
 
 #: gnomon filters run by default (all registered filters that take gyro+acc+mag in ENU)
-DEFAULT_FILTERS: tuple[str, ...] = ("mahony", "eskf-r6", "eskf-r3", "tilt-cf")
+DEFAULT_FILTERS: tuple[str, ...] = ("mahony", "eskf-r6", "eskf-r3", "tilt-cf", "robust-ahrs")
 _KEYS = ("total", "heading", "inclination")
 
 

@@ -20,6 +20,7 @@ _ENTRIES: dict[str, str] = {
     "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
     "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
     "mekf-spacecraft": "gnomon.estimators.ekf_spacecraft:MEKFSpacecraft",
+    "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
 }
 
 

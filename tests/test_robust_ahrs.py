@@ -1,0 +1,278 @@
+"""robust-ahrs: kernel vs readable update, each mechanism on synthetic data, BROAD regression."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gnomon.estimators import robust_ahrs
+from gnomon.estimators.robust_ahrs import RobustAHRS, RobustAHRSParams, butter2
+from gnomon.metrics import broad_errors_rad
+from gnomon.recording import Recording
+from gnomon.rotation import quat_conj, quat_from_euler, quat_from_rotvec, quat_mul, quat_rotate
+
+G = 9.81
+FIELD = np.array([0.0, 20.0, -45.0])  # uT, ENU
+DATA = Path(__file__).parent / "data" / "broad"
+
+
+def wobble(n=6000, fs=100.0, bias=(0.0, 0.0, 0.0), seed=0, acc_n=None, mag_n=None, amp=0.6):
+    """Body turning about changing axes (exact truth by integrating the rate), level start.
+
+    ``acc_n`` (n, 3) linear acceleration in ENU added to the specific force; ``mag_n``
+    (n, 3) field in ENU (default the constant ``FIELD``)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / fs
+    w = amp * np.stack([np.sin(0.31 * t), np.sin(0.23 * t + 1), 0.8 * np.sin(0.17 * t + 2)], 1)
+    q = np.empty((n, 4))
+    q[0] = quat_from_euler([0.1, -0.05, 0.7])
+    for i in range(1, n):
+        q[i] = quat_mul(q[i - 1], quat_from_rotvec(w[i] / fs))
+    q_bn = quat_conj(q)
+    f_n = np.tile([0.0, 0.0, G], (n, 1)) + (0 if acc_n is None else acc_n)
+    h_n = np.tile(FIELD, (n, 1)) if mag_n is None else mag_n
+    acc = quat_rotate(q_bn, f_n) + rng.normal(0, 0.02, (n, 3))
+    mag = quat_rotate(q_bn, h_n) + rng.normal(0, 0.2, (n, 3))
+    gyro = w + np.asarray(bias) + rng.normal(0, 0.002, (n, 3))
+    return Recording(t=t, gyro=gyro, accel=acc, mag=mag, mag_unit="uT", q_true=q,
+                     source="synthetic")
+
+
+def deg(x):
+    return np.degrees(x)
+
+
+def test_butterworth_matches_scipy():
+    from scipy.signal import butter
+
+    ts, tau = 0.01, 3.0
+    fc = np.sqrt(2) / (2 * np.pi * tau)
+    b, a = butter(2, fc, fs=1 / ts)
+    np.testing.assert_allclose(butter2(tau, ts), [*b, *a[1:]], rtol=1e-10)
+
+
+@pytest.mark.parametrize("overrides", [
+    {}, {"mag_bias_gain_per_s": 0.003, "heading_kf": False},
+    {"hard_iron_tau_s": 5.0, "mag_soft_norm": 0.05, "mag_soft_dip_deg": 5.0, "mag_every": 1,
+     "bias_every": 1}])
+def test_kernel_equals_reference_sample_by_sample(overrides):
+    n = 2500
+    # a magnetic disturbance in the middle, a rest phase at the start (gyro rate ~0)
+    h = np.tile(FIELD, (n, 1))
+    h[1200:1500] += [30.0, 0.0, 10.0]
+    rec = wobble(n=n, bias=(0.01, -0.02, 0.015), mag_n=h, seed=3)
+    rec.gyro[:400] = np.array([0.01, -0.02, 0.015]) + 0.001 * np.sin(np.arange(400))[:, None]
+    rec.gyro[:400] += 0.0
+    rec.accel[:400] = quat_rotate(quat_conj(rec.q_true[0]), [0, 0, G])
+    rec.mag[:400] = quat_rotate(quat_conj(rec.q_true[0]), FIELD)
+    rec.accel[700:705] = 0.0
+    rec.mag[900:905] = 0.0
+    params = RobustAHRSParams(tau_mag_s=3.0, mag_new_first_s=1.0, rest_min_s=0.5,
+                              **overrides)
+    run = RobustAHRS(params)
+    est = run.run(rec)
+    ref = RobustAHRS(params)
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    ref.start(run.ts)  # the same nominal sample time (median interval, 0.01 + 1e-17)
+    q_ref = np.array([ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i])
+                      for i in range(n)])
+    # same arithmetic up to rounding (numpy's matrix products vs unrolled loops): 2.5e-12
+    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(est.signals["bias_rad_s"][-1], ref.bias, rtol=0, atol=1e-12)
+    # the synthetic run exercised the mechanisms the comparison is about
+    assert est.signals["rest"][:400].any() and est.signals["mag_disturbed"][1200:1500].any()
+    assert est.signals["acc_skipped"][700:705].all() and est.signals["mag_skipped"][900:905].all()
+
+
+def test_rest_bias_converges():
+    bias = np.array([0.3, -0.5, 0.4]) * np.pi / 180  # rad/s
+    rec = wobble(n=6000, bias=bias)
+    n = len(rec)
+    q0 = quat_from_euler([0.2, -0.1, 1.0])
+    rec = Recording(t=rec.t, gyro=bias + np.random.default_rng(1).normal(0, 0.002, (n, 3)),
+                    accel=np.tile(quat_rotate(quat_conj(q0), [0, 0, G]), (n, 1)),
+                    mag=np.tile(quat_rotate(quat_conj(q0), FIELD), (n, 1)), mag_unit="uT",
+                    q_true=np.tile(q0, (n, 1)))
+    est = RobustAHRS().run(rec)
+    assert est.signals["rest"][200:].all()  # rest_min_s (1.5 s) + low-pass start-up
+    err = deg(est.signals["bias_rad_s"][-1] - bias)
+    assert np.all(np.abs(err) < 0.01), err  # deg/s
+    off = RobustAHRS(rest_bias=False, motion_bias=False).run(rec)
+    assert not off.signals["rest"].any()
+    np.testing.assert_array_equal(off.signals["bias_rad_s"][-1], 0.0)
+
+
+def test_motion_bias_reduces_tilt_drift():
+    bias = np.array([0.8, -0.6, 0.0]) * np.pi / 180
+    rec = wobble(n=12000, bias=bias, seed=2)
+    incl = {}
+    for on in (True, False):
+        est = RobustAHRS(motion_bias=on, rest_bias=False).run(rec)
+        incl[on] = deg(broad_errors_rad(rec.q_true[6000:], est.q[6000:])["inclination"])
+    rms = {k: np.sqrt(np.mean(v ** 2)) for k, v in incl.items()}
+    assert rms[True] < 0.6 * rms[False], rms
+
+
+def test_long_linear_acceleration_barely_tilts():
+    n = 4000
+    a_n = np.zeros((n, 3))
+    a_n[1000:1200, 0] = 2.0  # 2 m/s² east for 2 s, then braking: 11.5 deg of apparent tilt
+    a_n[1200:1400, 0] = -2.0
+    rec = wobble(n=n, acc_n=a_n, seed=4)
+    incl = {}
+    for tau in (2.5, 0.3):  # the default inertial-frame filter vs a short one
+        est = RobustAHRS(tau_acc_s=tau).run(rec)
+        incl[tau] = deg(broad_errors_rad(rec.q_true, est.q)["inclination"])
+    assert deg(np.arctan2(2.0, G)) > 11
+    assert incl[0.3][1000:2500].max() > 11  # a short filter follows the apparent tilt
+    assert incl[2.5][1000:2500].max() < 0.5 * incl[0.3][1000:2500].max()  # measured 5.4 deg
+    assert incl[2.5][3000:].max() < 0.5
+
+
+def test_magnetic_disturbance_flagged_and_never_tilts():
+    n = 6000
+    h = np.tile(FIELD, (n, 1))
+    h[3000:4000] += [25.0, -10.0, 15.0]  # 10 s next to a magnet
+    clean = wobble(n=n, seed=5)
+    dist = wobble(n=n, seed=5, mag_n=h)
+    est_c = RobustAHRS().run(clean)
+    est_d = RobustAHRS().run(dist)
+    est_off = RobustAHRS(mag_rejection=False).run(dist)
+    flag = est_d.signals["mag_disturbed"]
+    assert flag[3050:4000].mean() > 0.95 and not flag[2500:3000].any()
+    assert not flag[4500:].any()  # recovered
+    assert np.all(est_d.signals["mag_gain"][3050:4000][flag[3050:4000]] == 0.0)
+    # the magnetometer never touches the inclination: identical to the clean run
+    inc_c = broad_errors_rad(dist.q_true, est_c.q)["inclination"]
+    inc_d = broad_errors_rad(dist.q_true, est_d.q)["inclination"]
+    np.testing.assert_allclose(inc_d, inc_c, rtol=0, atol=1e-9)
+    head = {k: deg(np.abs(broad_errors_rad(dist.q_true, e.q)["heading"][3000:4500])).max()
+            for k, e in (("on", est_d), ("off", est_off))}
+    assert head["on"] < 0.5 and head["off"] > 3 * head["on"], head
+
+
+def test_heading_kf_recovers_faster_after_rejection():
+    n = 12000
+    t = np.arange(n) / 100.0
+    h = np.tile(FIELD, (n, 1))
+    # 50 s of a varying disturbance (never accepted as a new field) while the gyro drifts
+    h[2000:7000] += np.outer(1 + 0.8 * np.sin(1.3 * t[2000:7000]), [25.0, -10.0, 15.0])
+    rec = wobble(n=n, seed=6, mag_n=h)
+    rec.gyro[:, 2] += 0.3 * np.pi / 180
+    err = {}
+    for on in (True, False):
+        est = RobustAHRS(heading_kf=on, rest_bias=False, motion_bias=False).run(rec)
+        assert est.signals["mag_disturbed"][2100:7000].mean() > 0.9
+        assert not est.signals["mag_disturbed"][7200:].any()
+        err[on] = deg(np.abs(broad_errors_rad(rec.q_true, est.q)["heading"]))
+    assert err[True][6990] > 20  # the drift accumulated while rejecting
+    after = slice(9000, n)  # 20-50 s after the field came back
+    assert err[True][after].mean() < 0.75 * err[False][after].mean()  # measured 4.7 vs 7.2
+
+
+def test_zero_vectors_gap_and_params():
+    rec = wobble(n=600)
+    t = rec.t.copy()
+    t[300:] += 5.0
+    rec = Recording(t=t, gyro=rec.gyro, accel=rec.accel, mag=rec.mag, mag_unit="uT")
+    est = RobustAHRS().run(rec)
+    assert np.all(np.isfinite(est.q)) and est.signals["gap"][300] and est.signals["gap"].sum() == 1
+    from gnomon.errors import InputError
+
+    with pytest.raises(InputError, match="tau_acc_s"):
+        RobustAHRSParams(tau_acc_s=0.0)
+    with pytest.raises(InputError, match="dt_s"):
+        RobustAHRS().update(0.0, [0, 0, 0], [0, 0, G], FIELD)
+
+
+# ------------------------------------------------------------------- real data
+EXCERPTS = {  # measured with the shipped defaults; VQF on the same excerpt for scale
+    "01_undisturbed_slow_rotation_A_excerpt.mat": (2.2901, 2.2813, 0.2007),
+    "32_disturbed_attached_magnet_1cm_excerpt.hdf5": (11.7203, 11.7035, 0.6297),
+}
+
+
+@pytest.mark.parametrize("name", sorted(EXCERPTS))
+def test_broad_excerpt_regression(name):
+    from gnomon.anchors import run_anchor
+    from gnomon.benchmark import score_broad
+    from gnomon.io import read
+
+    rec = read(DATA / name)
+    got = score_broad(rec, RobustAHRS().run(rec).q)
+    want = EXCERPTS[name]
+    np.testing.assert_allclose([got["total_deg"], got["heading_deg"], got["inclination_deg"]],
+                               want, atol=0.01)
+    vqf = score_broad(rec, run_anchor("vqf", rec))
+    assert got["total_deg"] < 1.5 * vqf["total_deg"]
+
+
+def test_full_broad_targets_vs_vqf(full_broad):
+    from gnomon.benchmark import run_broad
+
+    out = run_broad(full_broad, filters=["robust-ahrs"], anchors=["vqf"])
+    assert not out["errors"]
+    ours, vqf = out["mean"]["robust-ahrs"], out["mean"]["vqf"]
+    assert ours["trials"] == vqf["trials"] == 15
+    assert ours["total_deg"] <= 2.4
+    assert ours["heading_deg"] <= vqf["heading_deg"]
+    assert ours["inclination_deg"] <= vqf["inclination_deg"]
+    by = {(r["trial"], r["method"]): r["total_deg"] for r in out["trials"]}
+    for trial in {r["trial"] for r in out["trials"]}:
+        assert by[trial, "robust-ahrs"] <= 1.5 * by[trial, "vqf"], trial
+
+
+def attached_magnet(n=9000, offset_ut=(25.0, -15.0, 30.0), on=slice(3000, 6000), seed=7):
+    """``wobble`` (rates up to 2 rad/s) with a magnet fixed to the sensor during ``on``: a
+    constant body-frame offset (hard iron) added to the magnetometer."""
+    rec = wobble(n=n, seed=seed, amp=2.0)
+    rec.mag[on] += np.asarray(offset_ut)
+    return rec
+
+
+def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
+    rec = attached_magnet()
+    offset = np.array([25.0, -15.0, 30.0])
+    # nearly unregularised least squares recovers the offset; the default prior shrinks it
+    sharp = RobustAHRS(hard_iron_tau_s=5.0, hard_iron_reg=0.002)
+    sharp.run(rec.slice(0, 5500))  # 25 s into the attached-magnet stretch
+    np.testing.assert_allclose(sharp.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], offset,
+                               atol=1.0)  # uT
+    p = RobustAHRSParams(hard_iron_tau_s=5.0)
+    f = RobustAHRS(p)
+    f.run(rec.slice(0, 5500))
+    o = f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3]
+    assert np.linalg.norm(o - offset) < 0.15 * np.linalg.norm(offset)
+    f.run(rec.slice(5500, 9000))  # magnet removed: the offset is dropped again
+    np.testing.assert_allclose(f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], 0.0, atol=1e-12)
+    # with the offset removed the field is accepted again (not flagged) and the heading stays
+    # close; without it the whole stretch is rejected
+    est = {tau: RobustAHRS(hard_iron_tau_s=tau).run(rec) for tau in (5.0, 0.0)}
+    window = slice(4000, 6000)  # 10-30 s after the magnet was attached
+    assert est[0.0].signals["mag_disturbed"][window].mean() > 0.9
+    assert est[5.0].signals["mag_disturbed"][window].mean() < 0.1
+    np.testing.assert_allclose(est[5.0].signals["hard_iron"][5900], offset, atol=0.15 * 40)
+    assert not est[0.0].signals["hard_iron"].any()
+    head = deg(np.abs(broad_errors_rad(rec.q_true, est[5.0].q)["heading"][window]))
+    assert head.max() < 3.0, head.max()
+    # a field that changes in space (not with the sensor) is not explained by an offset
+    h = np.tile(FIELD, (9000, 1))
+    h[3000:6000] += np.outer(np.sin(np.arange(3000) / 150.0), [20.0, 10.0, -15.0])
+    rec2 = wobble(n=9000, mag_n=h, seed=7)
+    f2 = RobustAHRS(p)
+    f2.run(rec2)
+    assert not np.any(f2.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3])
+
+
+def test_hard_iron_kernel_equals_reference():
+    rec = attached_magnet(n=4000, on=slice(1000, 3000))
+    params = RobustAHRSParams(hard_iron_tau_s=3.0)
+    run = RobustAHRS(params)
+    est = run.run(rec)
+    ref = RobustAHRS(params)
+    ref.start(run.ts)
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    q_ref = np.array([ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i])
+                      for i in range(len(rec))])
+    assert np.any(run.s[robust_ahrs.S_HI_W] > 0)
+    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-10)
