@@ -53,7 +53,8 @@ def test_benchmark_broad_json_contract(capsys):
 def test_estimate_with_truth_writes_outputs(tmp_path, capsys):
     trial = EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat"
     out_csv, out_h5, plot = tmp_path / "e.csv", tmp_path / "e.h5", tmp_path / "e.png"
-    assert main(["estimate", trial, "--param", "kp_acc_rad_s=0.5", "--out", out_csv,
+    assert main(["estimate", trial, "--filter", "mahony", "--param", "kp_acc_rad_s=0.5",
+                 "--out", out_csv,
                  "--plot", plot, "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["params"]["kp_acc_rad_s"] == 0.5
@@ -120,7 +121,7 @@ def test_unknown_filter_and_param(tmp_path):
     trial = EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat"
     code, _, err = run_cli("estimate", trial, "--filter", "nosuch")
     assert code == 2 and "nosuch" in err and "Traceback" not in err
-    code, _, err = run_cli("estimate", trial, "--param", "kp=1")
+    code, _, err = run_cli("estimate", trial, "--filter", "mahony", "--param", "kp=1")
     assert code == 2 and "'kp'" in err
 
 

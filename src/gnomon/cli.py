@@ -283,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("estimate", help="run a filter on a recording (CSV, BROAD, gnomon HDF5)")
     s.add_argument("input", help="recording file")
-    s.add_argument("--filter", default="mahony", help="filter name (see `gnomon filters`)")
+    s.add_argument("--filter", default="robust-ahrs",
+                   help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
     s.add_argument("--format", default="auto", choices=["auto", "broad", "csv", "hdf5"])
     s.add_argument("--out", help="write the estimate (.csv or .h5)")

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -54,6 +55,11 @@ def _convert(name: str, kind: type, value: Any):
     raise InputError(f"expected {kind.__name__}, got {value!r}", field=name)
 
 
+@functools.cache
+def _type_hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
 @dataclass(frozen=True)
 class Params:
     """Base class of every filter's tuning values (frozen; SI units; see ``describe``)."""
@@ -75,7 +81,9 @@ class Params:
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]):
         """Build from a mapping (e.g. parsed ``--param KEY=VALUE``); unknown names raise."""
-        hints = typing.get_type_hints(cls)
+        if not values:
+            return cls()
+        hints = _type_hints(cls)
         known = {f.name for f in dataclasses.fields(cls)}
         kwargs = {}
         for key, value in values.items():
