@@ -5,9 +5,9 @@
 Runs ``gnomon benchmark broad --json`` (the full BROAD trials when found, see
 ``gnomon.datasets.broad_dir``; the bundled excerpt otherwise) and
 ``gnomon bench --json``, then writes ``docs/benchmarks.md`` and replaces the
-performance table in ``README.md`` between the markers
-``<!-- bench:start -->`` and ``<!-- bench:end -->``. Nothing in those tables
-is typed by hand.
+speed and accuracy tables in ``README.md`` between the markers
+``<!-- bench:start/end -->`` and ``<!-- broad:start/end -->``. Nothing in those
+tables is typed by hand.
 """
 
 from __future__ import annotations
@@ -89,12 +89,16 @@ trials, every method with its default parameters, causal, the benchmark's own me
 """
     (ROOT / "docs" / "benchmarks.md").write_text(page)
     readme = (ROOT / "README.md").read_text()
-    start, end = "<!-- bench:start -->", "<!-- bench:end -->"
-    if start in readme and end in readme:
-        head, rest = readme.split(start, 1)
-        _, tail = rest.split(end, 1)
-        readme = f"{head}{start}\n{speed}\n{end}{tail}"
-        (ROOT / "README.md").write_text(readme)
+    mean_table = broad_tables(broad).split("\n\n")[0]
+    summary = (f"{n_trials} trials in `{Path(data).name}`, mean RMSE in degrees "
+               f"(`gnomon benchmark broad`, {today}):\n\n{mean_table}")
+    for name, text in (("bench", speed), ("broad", summary)):
+        start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+        if start in readme and end in readme:
+            head, rest = readme.split(start, 1)
+            _, tail = rest.split(end, 1)
+            readme = f"{head}{start}\n{text}\n{end}{tail}"
+    (ROOT / "README.md").write_text(readme)
     print(f"wrote docs/benchmarks.md ({data})")
 
 

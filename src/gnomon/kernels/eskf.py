@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from gnomon.kernels.eskf_unrolled import update_r3, update_r6
+from gnomon.kernels.quat import rotate_by
 
 MODE_PREDICT_ONLY = 0
 MODE_R3 = 3
@@ -108,32 +109,7 @@ def propagate(q, b, P, wx_m, wy_m, wz_m, dt, var_gyro, var_bias, A, T, U):
     wy = wy_m - b[1]
     wz = wz_m - b[2]
     # quaternion exponential of the rotation vector ω̂ dt
-    vx = wx * dt
-    vy = wy * dt
-    vz = wz * dt
-    th2 = vx * vx + vy * vy + vz * vz
-    if th2 < 2.5e-3:
-        # |θ| < 0.05 rad: Taylor series of sin(θ/2)/θ and cos(θ/2), truncation < 1e-18
-        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0)))
-        dw = 1.0 - th2 * (0.125 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
-                                                              - th2 * (1.0 / 10321920.0))))
-    else:
-        th = np.sqrt(th2)
-        k = np.sin(0.5 * th) / th
-        dw = np.cos(0.5 * th)
-    dx = k * vx
-    dy = k * vy
-    dz = k * vz
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    nw = qw * dw - qx * dx - qy * dy - qz * dz
-    nx = qw * dx + qx * dw + qy * dz - qz * dy
-    ny = qw * dy - qx * dz + qy * dw + qz * dx
-    nz = qw * dz + qx * dy - qy * dx + qz * dw
-    inv = 1.0 / np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0] = nw * inv
-    q[1] = nx * inv
-    q[2] = ny * inv
-    q[3] = nz * inv
+    rotate_by(q, wx * dt, wy * dt, wz * dt)
     # covariance: Φ P Φᵀ = [T Aᵀ + cU, U; Uᵀ, P22], T = A P11 + c P21, U = A P12 + c P22
     c = -0.5 * dt
     A[0, 0] = 1.0

@@ -16,40 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-_SMALL_TH2 = 0.0025  # (0.05 rad)²: below it the Taylor form equals the trigonometric one
-
-
-@njit(inline="always", error_model="numpy", fastmath={"contract", "arcp"})
-def _exp_mul(w, x, y, z, rx, ry, rz, trig, normalise):
-    """``q ⊗ exp(r)`` (normalised if asked), and whether |r| >= 0.05 rad (``trig``: exact there).
-
-    The product of two unit quaternions is unit to rounding; normalising once per
-    filter step (after the correction) keeps the norm at 1 to ~1e-16.
-    """
-    th2 = rx * rx + ry * ry + rz * rz
-    big = th2 >= _SMALL_TH2
-    if trig and big:
-        th = math.sqrt(th2)
-        dw = math.cos(0.5 * th)
-        k = math.sin(0.5 * th) / th
-    else:
-        # Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸: the first omitted terms are
-        # below 1e-22 for θ < 0.05 rad, so this equals the trigonometric form there
-        dw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (1.0 / 46080.0
-                                                               - th2 / 10321920.0)))
-        k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (1.0 / 645120.0
-                                                              - th2 / 185794560.0)))
-    dx = k * rx
-    dy = k * ry
-    dz = k * rz
-    nw = w * dw - x * dx - y * dy - z * dz
-    nx = w * dx + x * dw + y * dz - z * dy
-    ny = w * dy - x * dz + y * dw + z * dx
-    nz = w * dz + x * dy - y * dx + z * dw
-    if not normalise:
-        return nw, nx, ny, nz, big
-    s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    return nw * s, nx * s, ny * s, nz * s, big
+from gnomon.kernels.quat import exp_mul as _exp_mul
 
 
 @njit(inline="always", error_model="numpy", fastmath={"contract", "arcp"})

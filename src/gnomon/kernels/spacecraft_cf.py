@@ -23,32 +23,15 @@ import math
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.quat import rotate_by
+
 
 @njit(cache=True, error_model="numpy")
 def _rotate_by(q, rx, ry, rz):
     """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place (rotation vector, rad, body)."""
-    th = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if not (th < 1e6):  # non-finite or absurd: leave q unchanged
+    if not (rx * rx + ry * ry + rz * rz < 1e12):  # non-finite or absurd: leave q unchanged
         return
-    if th < 1e-4:
-        th2 = th * th
-        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
-    else:
-        k = math.sin(0.5 * th) / th
-    dw = math.cos(0.5 * th)
-    dx = k * rx
-    dy = k * ry
-    dz = k * rz
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    nw = w * dw - x * dx - y * dy - z * dz
-    nx = w * dx + x * dw + y * dz - z * dy
-    ny = w * dy - x * dz + y * dw + z * dx
-    nz = w * dz + x * dy - y * dx + z * dw
-    s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0] = nw * s
-    q[1] = nx * s
-    q[2] = ny * s
-    q[3] = nz * s
+    rotate_by(q, rx, ry, rz)
 
 
 @njit(cache=True, error_model="numpy")
