@@ -96,3 +96,28 @@ def test_missing_image_is_reported_by_the_browser(tmp_path):
                        env={**os.environ, "HOME": str(tmp_path)})
     assert any("missing image: p004/nothere.png" in line for line in p.stderr.splitlines())
     json.dumps(evaluate("004", {}))  # an empty result still gives a serialisable table
+
+
+def test_reproduce_all_quick_report_opens_in_chromium(tmp_path):
+    """`gnomon reproduce all --quick --out DIR`: every paper's page has its table and
+    figures, and every page opens in headless Chromium without console errors."""
+    from gnomon.cli import main
+
+    out = tmp_path / "report"
+    assert main(["reproduce", "all", "--quick", "--out", out, "--json"]) == 0
+    pages = sorted(out.glob("p*.html"))
+    assert [p.stem for p in pages] == ["p000", "p001", "p002", "p003", "p004"]
+    for page in pages:
+        text = page.read_text()
+        assert "Paper vs gnomon" in text, page  # the paper-vs-gnomon table, not a failure
+        assert "<img" in text, page
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("Chromium not installed: the report was built but NOT opened in a browser")
+    for page in [out / "index.html", *pages]:
+        p = subprocess.run([chromium, *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'ud'}",
+                            f"--screenshot={tmp_path / (page.stem + '.png')}", page.as_uri()],
+                           capture_output=True, text=True, timeout=120,
+                           env={**os.environ, "HOME": str(tmp_path)})
+        console = [line for line in p.stderr.splitlines() if ":CONSOLE" in line]
+        assert console == [], (page.name, console)
