@@ -109,8 +109,11 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
     for fn, _ in methods.values():  # warm-up: compilation and caches
         fn()
     times: dict[str, list[float]] = {name: [] for name in methods}
-    for _ in range(repeats):
-        for name, (fn, _) in methods.items():
+    names = list(methods)
+    for k in range(repeats):
+        # interleaved, and each round starts at another method: none is always first
+        for name in names[k % len(names):] + names[:k % len(names)]:
+            fn = methods[name][0]
             t0 = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)
