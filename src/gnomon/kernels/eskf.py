@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from gnomon.kernels.eskf_unrolled import update_r3, update_r6
-from gnomon.kernels.quat import rotate_by
+from gnomon.kernels.quat import dcm, rotate_by
 
 MODE_PREDICT_ONLY = 0
 MODE_R3 = 3
@@ -210,16 +210,7 @@ def measure_r3(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag, fa,
     body-frame error ``q = q̂ ⊗ δq`` (derivation in ``docs/estimators/eskf.md``).
     The predicted measurement is zero.
     """
-    w, x, y_, z = q[0], q[1], q[2], q[3]
-    c00 = 1.0 - 2.0 * (y_ * y_ + z * z)
-    c01 = 2.0 * (x * y_ - w * z)
-    c02 = 2.0 * (x * z + w * y_)
-    c10 = 2.0 * (x * y_ + w * z)
-    c11 = 1.0 - 2.0 * (x * x + z * z)
-    c12 = 2.0 * (y_ * z - w * x)
-    c20 = 2.0 * (x * z - w * y_)
-    c21 = 2.0 * (y_ * z + w * x)
-    c22 = 1.0 - 2.0 * (x * x + y_ * y_)
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
     ig = 1.0 / g
     ih = 1.0 / mag_h
     y[0] = (c00 * ax + c01 * ay + c02 * az) * ig
@@ -328,16 +319,7 @@ def accel_lowpass(q, ax, ay, az, lp, w, out):
     (the idea of VQF's inertial-frame low-pass, Laidig & Seel 2023), so the filtered
     reading, rotated back into the body frame, is the better gravity measurement.
     """
-    w0, x, y_, z = q[0], q[1], q[2], q[3]
-    c00 = 1.0 - 2.0 * (y_ * y_ + z * z)
-    c01 = 2.0 * (x * y_ - w0 * z)
-    c02 = 2.0 * (x * z + w0 * y_)
-    c10 = 2.0 * (x * y_ + w0 * z)
-    c11 = 1.0 - 2.0 * (x * x + z * z)
-    c12 = 2.0 * (y_ * z - w0 * x)
-    c20 = 2.0 * (x * z - w0 * y_)
-    c21 = 2.0 * (y_ * z + w0 * x)
-    c22 = 1.0 - 2.0 * (x * x + y_ * y_)
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
     lp[0] += w * (c00 * ax + c01 * ay + c02 * az - lp[0])
     lp[1] += w * (c10 * ax + c11 * ay + c12 * az - lp[1])
     lp[2] += w * (c20 * ax + c21 * ay + c22 * az - lp[2])

@@ -1,6 +1,7 @@
 """Scalar quaternion kernels shared by the compiled filters (numba, inlined).
 
-``exp_mul`` is the one place where a filter turns ``q`` by a rotation vector:
+``dcm`` gives the rotation matrix entries of ``q``. ``exp_mul`` is the one place where a
+filter turns ``q`` by a rotation vector:
 ``q ⊗ exp(r)``, with a Taylor series for |r| < 0.05 rad that equals the
 trigonometric form to double precision (so the batch-over-runs loops can use
 it without branches, see ``gnomon.kernels.mahony``).
@@ -54,3 +55,11 @@ def exp_mul(w, x, y, z, rx, ry, rz, trig, normalise):
 def rotate_by(q, rx, ry, rz):
     """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place on the array ``q`` (4,)."""
     q[0], q[1], q[2], q[3], _ = exp_mul(q[0], q[1], q[2], q[3], rx, ry, rz, True, True)
+
+
+@njit(inline="always")
+def dcm(w, x, y, z):
+    """The nine entries ``c00, c01, ..., c22`` of ``R(q)`` (row-major) for a unit ``q``."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
