@@ -232,13 +232,11 @@ def _correct(q, rv):
     return q / np.linalg.norm(q)
 
 
-class ExplicitSpacecraftCF(Estimator):
-    """Explicit complementary filter (Mahony 2008) on the magnetic and sun pairs; ``q_ob``."""
+class VectorPairFilter(Estimator):
+    """What the seed-000 filters share: state (``q_ob``, gyro bias, last time, the tail of
+    vector pairs for the delayed substitute), the pairs of a recording continuing that
+    state, the initial attitude and the batch outputs. Subclasses add their update/run."""
 
-    name = "ecf-spacecraft"
-    summary = ("Explicit complementary filter for spacecraft (seed 000 baseline): mag + sun + "
-               "gyro, orbital frame, PI drift estimation, delayed-field sun substitute")
-    Params = SpacecraftCFParams
     needs = ("gyro", "mag", "extra.b_o_nT")
     state_fields = ("q", "bias", "t_last", "tail")
 
@@ -248,6 +246,45 @@ class ExplicitSpacecraftCF(Estimator):
         self.flags = {}
         self.t_last = None  # s, last sample processed by ``run``
         self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
+
+    def pairs(self, rec: Recording) -> dict:
+        """``vector_pairs`` of ``rec`` continuing this filter's earlier runs."""
+        p = self.params
+        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
+                             history=self.tail)
+        pairs["dt"][0] = self.first_dt(rec)
+        return pairs
+
+    def _start(self, pairs: dict, q0) -> None:
+        if q0 is not None:
+            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
+        elif self.q is None:
+            self.q = initial_q_ob(pairs)
+
+    @staticmethod
+    def _outputs(n: int):
+        """``q_out`` (n, 4), ``b_out`` (n, 3), ``flags`` (n, 4) int8 for a batch kernel."""
+        return np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 4), np.int8)
+
+    def _finish(self, rec: Recording, pairs: dict, q_out, b_out, flags, names,
+                **signals) -> Estimate:
+        """Keep the end state and wrap the outputs; ``names``: the 4 flag columns' names."""
+        self.q, self.bias = q_out[-1].copy(), b_out[-1].copy()
+        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
+        flag_signals = {name: flags[:, i].astype(bool) for i, name in enumerate(names)}
+        return Estimate(
+            t=rec.t, q=q_out, estimator=self.name, params=self.params.as_dict(),
+            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
+            signals={"bias_rad_s": b_out, **signals, **flag_signals})
+
+
+class ExplicitSpacecraftCF(VectorPairFilter):
+    """Explicit complementary filter (Mahony 2008) on the magnetic and sun pairs; ``q_ob``."""
+
+    name = "ecf-spacecraft"
+    summary = ("Explicit complementary filter for spacecraft (seed 000 baseline): mag + sun + "
+               "gyro, orbital frame, PI drift estimation, delayed-field sun substitute")
+    Params = SpacecraftCFParams
 
     def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
         """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
@@ -299,17 +336,9 @@ class ExplicitSpacecraftCF(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
-                             history=self.tail)
-        pairs["dt"][0] = self.first_dt(rec)
-        if q0 is not None:
-            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
-        elif self.q is None:
-            self.q = initial_q_ob(pairs)
-        n = len(rec)
-        q_out = np.empty((n, 4))
-        b_out = np.empty((n, 3))
-        flags = np.zeros((n, 4), np.int8)
+        pairs = self.pairs(rec)
+        self._start(pairs, q0)
+        q_out, b_out, flags = self._outputs(len(rec))
         state_q = np.array(self.q, float)
         state_b = np.array(self.bias, float)
         ecf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], pairs["mag_b"], pairs["mag_o"],
@@ -317,12 +346,6 @@ class ExplicitSpacecraftCF(Estimator):
                   p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.k_mag,
                   p.k_sun, p.max_dt_s, float(np.sin(np.radians(p.min_angle_deg))), q_out,
                   b_out, flags)
-        self.q, self.bias = state_q, state_b
-        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
-        return Estimate(
-            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
-            signals={"bias_rad_s": b_out, "mag_unusable": flags[:, 0].astype(bool),
-                     "sun_unusable": flags[:, 1].astype(bool), "gap": flags[:, 2].astype(bool),
-                     "coast": flags[:, 3].astype(bool), "sun_substituted": pairs["substituted"]},
-        )
+        return self._finish(rec, pairs, q_out, b_out, flags,
+                            ("mag_unusable", "sun_unusable", "gap", "coast"),
+                            sun_substituted=pairs["substituted"])

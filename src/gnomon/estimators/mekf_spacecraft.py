@@ -35,8 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gnomon.estimators.base import Estimate, Estimator, Params, param
-from gnomon.estimators.ecf_spacecraft import _propagate, _unit, initial_q_ob, vector_pairs
+from gnomon.estimators.base import Estimate, Params, param
+from gnomon.estimators.ecf_spacecraft import (
+    VectorPairFilter,
+    _propagate,
+    _unit,
+)
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, skew
 
@@ -76,25 +80,20 @@ class MagGyroMEKFParams(Params):
         self._require("swing_gain", self.swing_gain >= 0, "must be >= 0")
 
 
-class MagGyroMEKF(Estimator):
+class MagGyroMEKF(VectorPairFilter):
     """Magnetometer(+sun)+gyro MEKF with bias; survives sun loss on the turning field; q_ob."""
 
     name = "mekf-delayed"
     summary = ("Multiplicative EKF (Lefferts-Markley-Shuster) on mag (+ sun where valid) + gyro "
                "with bias; orbital frame; keeps attitude and drift through sun outages")
     Params = MagGyroMEKFParams
-    needs = ("gyro", "mag", "extra.b_o_nT")
     state_fields = ("q", "bias", "P", "t_last", "tail")
 
     def reset(self) -> None:
+        super().reset()
         p = self.params
         self.history = []  # past estimates (for the delayed pair's weight)
-        self.q = None
-        self.bias = np.zeros(3)
-        self.t_last = None  # s, last sample processed by ``run``
-        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
         self.P = np.diag([p.sigma0_att_rad ** 2] * 3 + [p.sigma0_bias_rad_s ** 2] * 3)
-        self.flags = {}
 
     def _vector_update(self, vb, vo, sigma) -> bool:
         ub, ok_b = _unit(vb)
@@ -168,19 +167,11 @@ class MagGyroMEKF(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
-                             history=self.tail)
-        pairs["dt"][0] = self.first_dt(rec)
+        pairs = self.pairs(rec)
         if not p.use_sun:
             pairs["sec_valid"] = np.zeros(len(rec), bool)
-        if q0 is not None:
-            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
-        elif self.q is None:
-            self.q = initial_q_ob(pairs)
-        n = len(rec)
-        q_out = np.empty((n, 4))
-        b_out = np.empty((n, 3))
-        flags = np.zeros((n, 4), np.int8)
+        self._start(pairs, q0)
+        q_out, b_out, flags = self._outputs(len(rec))
         state_q = np.array(self.q, float)
         state_b = np.array(self.bias, float)
         state_P = np.array(self.P, float)
@@ -189,12 +180,6 @@ class MagGyroMEKF(Estimator):
                    p.delay_samples, p.swing_gain, state_q, state_b, state_P, p.sigma_mag_rad,
                    p.sigma_sun_rad, p.arw_rad_rt_s, p.bias_rw_rad_s_rt_s, p.max_dt_s, q_out,
                    b_out, flags)
-        self.q, self.bias, self.P = state_q, state_b, state_P
-        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
-        return Estimate(
-            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
-            signals={"bias_rad_s": b_out, "mag_unusable": flags[:, 0].astype(bool),
-                     "sun_unusable": flags[:, 1].astype(bool), "gap": flags[:, 2].astype(bool),
-                     "coast": flags[:, 3].astype(bool)},
-        )
+        self.P = state_P
+        return self._finish(rec, pairs, q_out, b_out, flags,
+                            ("mag_unusable", "sun_unusable", "gap", "coast"))

@@ -35,14 +35,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.base import Estimate, Params, param
 from gnomon.estimators.ecf_spacecraft import (
     SUN_SUBSTITUTES,
+    VectorPairFilter,
     _correct,
     _propagate,
     _unit,
     initial_q_ob,
-    vector_pairs,
 )
 from gnomon.estimators.wahba import DEFAULT_MIN_QUALITY, SOLVERS, solve
 from gnomon.recording import Recording
@@ -139,22 +139,13 @@ def measured_quaternions(pairs: dict, solver: str = "gauss-newton", q0=None,
     return res.q, ~res.degenerate & pairs["sec_valid"]
 
 
-class QuaternionCF(Estimator):
+class QuaternionCF(VectorPairFilter):
     """Complementary filter on the measured quaternion (seed 000's proposal); ``q_ob``."""
 
     name = "qcf"
     summary = ("Complementary filter driven by a measured quaternion (seed 000): Gauss-Newton "
                "(or QUEST/SVD/...) q_mes from mag + sun, PI on vec(conj(q) ⊗ q_mes)")
     Params = QuaternionCFParams
-    needs = ("gyro", "mag", "extra.b_o_nT")
-    state_fields = ("q", "bias", "t_last", "tail")
-
-    def reset(self) -> None:
-        self.q = None
-        self.bias = np.zeros(3)
-        self.t_last = None  # s, last sample processed by ``run``
-        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
-        self.flags = {}
 
     def update(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b=None, mag_o=None):
         """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
@@ -197,9 +188,7 @@ class QuaternionCF(Estimator):
         """(pairs, q_mes, ok) for ``rec`` with this filter's solver and substitution."""
         p = self.params
         if pairs is None:
-            pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
-                                 history=self.tail)
-            pairs["dt"][0] = self.first_dt(rec)
+            pairs = self.pairs(rec)
         if q0 is None:
             q0 = initial_q_ob(pairs)
         q_mes, ok = measured_quaternions(pairs, p.solver, q0, p.gn_iterations, p.k_mag,
@@ -214,27 +203,15 @@ class QuaternionCF(Estimator):
         self.check_inputs(rec)
         p = self.params
         pairs, q_mes, ok = measured if measured is not None else self.measure(rec)
-        if q0 is not None:
-            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
-        elif self.q is None:
-            self.q = initial_q_ob(pairs)
-        n = len(rec)
-        q_out = np.empty((n, 4))
-        b_out = np.empty((n, 3))
-        flags = np.zeros((n, 4), np.int8)
+        self._start(pairs, q0)
+        q_out, b_out, flags = self._outputs(len(rec))
         state_q = np.array(self.q, float)
         state_b = np.array(self.bias, float)
         qcf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], np.ascontiguousarray(q_mes),
                   np.asarray(ok, np.bool_), pairs["mag_b"], pairs["mag_o"], state_q, state_b,
                   p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.max_dt_s,
                   q_out, b_out, flags)
-        self.q, self.bias = state_q, state_b
-        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
-        return Estimate(
-            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
-            signals={"bias_rad_s": b_out, "q_mes": q_mes, "q_mes_ok": np.asarray(ok, bool),
-                     "mag_unusable": flags[:, 0].astype(bool),
-                     "mes_unusable": flags[:, 1].astype(bool), "gap": flags[:, 2].astype(bool),
-                     "coast": flags[:, 3].astype(bool), "sun_substituted": pairs["substituted"]},
-        )
+        return self._finish(rec, pairs, q_out, b_out, flags,
+                            ("mag_unusable", "mes_unusable", "gap", "coast"),
+                            q_mes=q_mes, q_mes_ok=np.asarray(ok, bool),
+                            sun_substituted=pairs["substituted"])
