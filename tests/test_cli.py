@@ -164,3 +164,17 @@ def test_campaign_command_json_and_bad_vary(tmp_path, capsys):
     code, _, err = run_cli("campaign", "seed001", "--runs", "2", "--out", tmp_path / "d",
                            "--vary", "spacecraft.nosuch=normal(0,1)")
     assert code == 2 and "nosuch" in err and "Traceback" not in err
+
+
+def test_bench_json_contract(capsys):
+    """``gnomon bench --json`` keys (the speed itself is measured, not asserted)."""
+    assert main(["bench", "--samples", "3000", "--repeats", "1", "--runs", "16",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["samples"] == 3000 and out["repeats"] == 1
+    names = set(out["results"])
+    assert {"mahony", "eskf-r3", "robust-ahrs", "gnomon-batch-mahony-R16"} <= names
+    if "vqf-batch" in names:
+        assert out["results"]["vqf-batch"]["ratio_to_vqf_batch"] == pytest.approx(1.0)
+    for r in out["results"].values():
+        assert r["samples_per_s"] > 0 and "ratio_to_vqf_batch" in r

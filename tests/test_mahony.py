@@ -96,6 +96,53 @@ def test_batch_over_runs_equals_single_runs(imu_factory):
         np.testing.assert_allclose(q[k], Mahony(params).run(rec).q, atol=1e-12)
 
 
+@pytest.mark.parametrize("heading_only", [True, False])
+def test_batch_redoes_the_steps_that_need_exact_forms(imu_factory, heading_only):
+    """Fast turns (> 0.05 rad a step), a gap, a zero vector and a non-unit initial
+    quaternion take the batch kernel's exact path; every run still equals its own run."""
+    from gnomon.estimators.mahony import run_batch
+
+    rates = [[0.2, -0.1, 0.3], [9.0, -2.0, 4.0], [0.1, 0.0, -0.2], [0.5, 7.5, -6.0]]
+    recs = [imu_factory(quat_from_euler([0.2, -0.1 * k, 0.5 * k]), w, n=400, noise=0.01,
+                        seed=10 + k) for k, w in enumerate(rates)]
+    t = recs[0].t.copy()
+    t[200:] += 3.0  # a gap longer than max_dt_s
+    acc = np.stack([r.accel for r in recs])
+    acc[2, 50:55] = 0.0
+    q0 = np.stack([quat_from_euler([0.1, 0.2, 0.3 * k]) for k in range(4)])
+    q0[3] *= 1.001  # far from unit norm: normalised by 1/sqrt, not by the Newton step
+    params = MahonyParams(kp_acc_rad_s=0.8, kp_mag_rad_s=0.4, ki_per_s=0.05,
+                          mag_heading_only=heading_only)
+    q = run_batch(t, np.stack([r.gyro for r in recs]), acc, np.stack([r.mag for r in recs]),
+                  params, q0=q0)
+    for k, rec in enumerate(recs):
+        single = Mahony(params)
+        single.q = q0[k].copy()
+        one = single.run(Recording(t=t, gyro=rec.gyro, accel=acc[k], mag=rec.mag))
+        np.testing.assert_allclose(q[k], one.q, atol=1e-12)
+    ref = Mahony(params)  # the readable reference, for the fastest run
+    ref.q = q0[1].copy()
+    dt = np.diff(t, prepend=t[0])
+    q_ref = np.array([ref.update(dt[i], recs[1].gyro[i], acc[1, i], recs[1].mag[i]).copy()
+                      for i in range(len(t))])
+    np.testing.assert_allclose(q[1], q_ref, atol=1e-12)
+
+
+def test_batch_writes_into_an_earlier_result(imu_factory):
+    from gnomon.estimators.mahony import run_batch
+
+    recs = [imu_factory(quat_from_euler([0.1, -0.2, k]), [0.2, 0.1 * k, 0.3], n=300,
+                        noise=0.01, seed=k) for k in range(3)]
+    g, a, m = (np.stack([getattr(r, f) for r in recs]) for f in ("gyro", "accel", "mag"))
+    first = run_batch(recs[0].t, g, a, m)
+    kept = first.copy()
+    again = run_batch(recs[0].t, g[::-1], a[::-1], m[::-1], out=first)
+    assert np.shares_memory(again, first)
+    np.testing.assert_allclose(again, kept[::-1], atol=1e-12)
+    with pytest.raises(InputError, match="out"):
+        run_batch(recs[0].t, g, a, m, out=np.empty((3, 300, 4)))  # not run-minor memory
+
+
 def test_split_run_with_saved_state_equals_whole_run(imu_factory):
     rec = imu_factory(quat_from_euler([0.3, 0.1, -0.5]), [0.3, 0.2, -0.1], n=2000, noise=0.01)
     whole = Mahony().run(rec).q

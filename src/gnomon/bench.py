@@ -2,7 +2,9 @@
 
 ``run_bench`` simulates one 9-axis IMU recording (``gnomon.simulation.ahrs``,
 100 Hz, smooth random rotation, MEMS noise) and times, interleaved over
-``repeats`` rounds (median per method, compilation excluded by a warm-up call):
+``repeats`` rounds in a random order each round (median per method, compilation
+excluded by a warm-up call, freed memory kept for reuse by every method, see
+``_freed_memory_kept``):
 
 * every registered gnomon filter that runs on gyro + accelerometer + magnetometer
   (its batch ``run(recording)``, compiled kernels);
@@ -17,11 +19,16 @@ Result (``gnomon bench --json``)::
 
     {"samples": int, "repeats": int,
      "results": {NAME: {"samples_per_s": float, "ratio_to_vqf_batch": float,
-                        "samples_timed": int}}}
+                        "samples_timed": int}},
+     "machine": {"cpu_count": int, "python": str, "processor": str,
+                 "freed_memory_reused": bool}}
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
 import importlib.util
 import os
 import platform
@@ -100,26 +107,33 @@ def _methods(rec, runs: int):
 
 
 def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
-              quick: bool = False, progress: bool = False) -> dict:
-    """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats."""
+              quick: bool = False, progress: bool = False, seed: int = 0) -> dict:
+    """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats.
+
+    ``seed`` fixes the random order of the methods in each round.
+    """
     if quick:
         samples, repeats = min(samples, 200_000), min(repeats, 3)
-    rec = _recording(samples)
-    methods = _methods(rec, runs)
-    for fn, _ in methods.values():  # warm-up: compilation and caches
-        fn()
-    times: dict[str, list[float]] = {name: [] for name in methods}
-    names = list(methods)
-    for k in range(repeats):
-        # interleaved, and each round starts at another method: none is always first
-        for name in names[k % len(names):] + names[:k % len(names)]:
-            fn = methods[name][0]
-            t0 = time.perf_counter()
+    with _freed_memory_kept() as keeps_memory:
+        rec = _recording(samples)
+        methods = _methods(rec, runs)
+        for fn, _ in methods.values():  # warm-up: compilation and caches
             fn()
-            times[name].append(time.perf_counter() - t0)
-            if progress:
-                print(f"  {name}: {methods[name][1] / times[name][-1] / 1e6:.2f} M samples/s",
-                      flush=True)
+        times: dict[str, list[float]] = {name: [] for name in methods}
+        names = list(methods)
+        order = np.random.default_rng(seed)
+        for _ in range(repeats):
+            # interleaved, in a new random order each round: no method always runs first or
+            # always after the same neighbour (a call that follows one which freed a lot of
+            # memory pays for fresh pages; the median should not inherit that from the order)
+            for name in [names[j] for j in order.permutation(len(names))]:
+                fn = methods[name][0]
+                t0 = time.perf_counter()
+                fn()
+                times[name].append(time.perf_counter() - t0)
+                if progress:
+                    rate = methods[name][1] / times[name][-1]
+                    print(f"  {name}: {rate / 1e6:.2f} M samples/s", flush=True)
     rates = {name: methods[name][1] / float(np.median(v)) for name, v in times.items()}
     ref = rates.get("vqf-batch")
     results = {name: {"samples_per_s": rate,
@@ -128,18 +142,30 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
                for name, rate in rates.items()}
     return {"samples": len(rec), "repeats": repeats, "results": results,
             "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
-                        "processor": platform.processor() or platform.machine()}}
+                        "processor": platform.processor() or platform.machine(),
+                        "freed_memory_reused": keeps_memory}}
 
 
-def markdown_table(res: dict) -> str:
-    """The result as a Markdown table, fastest first (the README's table is made by this)."""
-    rows = sorted(res["results"].items(), key=lambda kv: -kv[1]["samples_per_s"])
-    lines = [f"Measured by `gnomon bench` ({res['samples']:,} samples, median of "
-             f"{res['repeats']}, {res['machine']['cpu_count']} cores, "
-             f"Python {res['machine']['python']}):", "",
-             "| method | million samples/s | ratio to VQF updateBatch |",
-             "| --- | ---: | ---: |"]
-    for name, r in rows:
-        lines.append(f"| {name} | {r['samples_per_s'] / 1e6:.2f} | "
-                     f"{r['ratio_to_vqf_batch']:.2f} |")
-    return "\n".join(lines)
+@contextlib.contextmanager
+def _freed_memory_kept():
+    """Within: glibc serves large arrays from its heap and keeps freed memory (no ``mmap``,
+    no trimming), so that every method, gnomon's and the references' alike, reuses pages
+    the process already has. Otherwise each call's output arrays are fresh pages from
+    the kernel, and on these machines touching 150 MB of them takes 5 ms or, now and
+    then, 100-250 ms (compaction for transparent huge pages): noise that the median
+    of a few rounds does not remove. Yields whether the setting took (glibc only);
+    glibc's defaults are set again on exit."""
+    m_trim_threshold, m_mmap_max = -1, -4
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        took = bool(libc.mallopt(m_mmap_max, 0)) and bool(
+            libc.mallopt(m_trim_threshold, 2**31 - 1))
+    except (OSError, AttributeError):
+        libc, took = None, False
+    try:
+        yield took
+    finally:
+        if libc is not None:
+            libc.mallopt(m_mmap_max, 65536)
+            libc.mallopt(m_trim_threshold, 128 * 1024)
+            libc.malloc_trim(0)

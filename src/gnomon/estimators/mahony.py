@@ -154,7 +154,8 @@ class Mahony(Estimator):
         )
 
 
-def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None) -> np.ndarray:
+def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None,
+              out=None) -> np.ndarray:
     """R independent Mahony filters in one compiled call (Monte Carlo runs, parameter sweeps).
 
     ``t`` (N,) s shared by the runs; ``gyro`` (R, N, 3) rad/s, ``acc``, ``mag`` (R, N, 3)
@@ -162,6 +163,8 @@ def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None) ->
     Returns ``q_nb`` (R, N, 4). The kernel loops over runs innermost: arrays whose
     memory is run-minor (an (N, 3, R) C array seen through ``.transpose(2, 0, 1)``)
     are used without a copy; others are copied into that layout once.
+    ``out``: an earlier result of the same shape to write into (no new memory: a loop
+    over chunks of runs reuses one buffer; fresh memory costs its page faults).
     """
     from gnomon.kernels.mahony import mahony_batch_runs
 
@@ -182,7 +185,16 @@ def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None) ->
     dt = np.empty(t.size)
     dt[0] = 0.0
     dt[1:] = np.diff(t)
-    out = np.empty((t.size, 4, r))
+    if out is None:
+        out = np.empty((t.size, 4, r))
+    else:
+        given = np.asarray(out)
+        out = given.transpose(1, 2, 0) if given.ndim == 3 else given
+        if out.shape != (t.size, 4, r) or out.dtype != np.float64 \
+                or not out.flags.c_contiguous:
+            raise InputError(f"expected an earlier result of shape ({r}, {t.size}, 4) "
+                             f"(float64, run-minor memory), got {given.shape} "
+                             f"{given.dtype}", field="out")
     mahony_batch_runs(dt, g, a, m, q, b, p.kp_acc_rad_s, p.kp_mag_rad_s, p.ki_per_s,
                       p.mag_heading_only, p.max_dt_s, out)
     return out.transpose(2, 0, 1)

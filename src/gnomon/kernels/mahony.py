@@ -4,9 +4,9 @@ Twin of ``gnomon.estimators.mahony.Mahony.update`` (tested sample by sample).
 One step is written once, in ``_core``, on scalars; the single-stream loop and
 the batch-over-runs loop both call it. The batch loop runs the step for all
 runs in a branch-light form that LLVM vectorises (the rotation exponential by
-its Taylor series only) and then redoes, with the exact trigonometric form,
-the few runs whose step rotated by more than 0.05 rad — so every run equals
-its single-stream result.
+its Taylor series only) and then redoes, with the exact forms, the few runs
+whose step needed them (a rotation of more than 0.05 rad) — so every run
+equals its single-stream result.
 """
 
 from __future__ import annotations
@@ -16,23 +16,27 @@ import math
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.quat import dcm as _dcm
 from gnomon.kernels.quat import exp_mul as _exp_mul
 
+# Floating-point freedoms: fused multiply-add, reciprocals and re-association (results
+# move by rounding only, ~1e-15; the tests hold the kernels to 1e-12 of the reference).
+_FAST = {"contract", "arcp", "reassoc", "nsz"}
 
-@njit(inline="always", error_model="numpy", fastmath={"contract", "arcp"})
+
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
 def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
           kp_acc, kp_mag, ki, heading_only, trig):
     """One corrected step (0 < dt <= max_dt) on scalars.
 
-    Returns ``(w, x, y, z, b0, b1, b2, flags, big)``: flags bit 1 accelerometer skipped,
-    bit 2 magnetometer skipped; ``big``: a rotation of >= 0.05 rad was taken (see ``trig``).
+    Returns ``(w, x, y, z, b0, b1, b2, flags, redo)``: flags bit 1 accelerometer skipped,
+    bit 2 magnetometer skipped; ``redo``: with ``trig`` False, the step needed the exact
+    forms (a rotation of >= 0.05 rad, see ``gnomon.kernels.quat.exp_mul``).
     """
-    w, x, y, z, big1 = _exp_mul(w, x, y, z, (gx - b0) * dt, (gy - b1) * dt, (gz - b2) * dt,
+    w, x, y, z, redo1 = _exp_mul(w, x, y, z, (gx - b0) * dt, (gy - b1) * dt, (gz - b2) * dt,
                                 trig, False)
-    # up direction in body: R_nb^T [0,0,1] (third row of R_nb)
-    ux = 2.0 * (x * z - w * y)
-    uy = 2.0 * (y * z + w * x)
-    uz = 1.0 - 2.0 * (x * x + y * y)
+    c00, c01, c02, c10, c11, c12, ux, uy, uz = _dcm(w, x, y, z)
+    # (ux, uy, uz): the up direction in body, R_nbᵀ [0, 0, 1] (third row of R_nb)
     na = math.sqrt(ax * ax + ay * ay + az * az)
     ia = 1.0 / na if na > 0.0 else 0.0  # a zero vector gives a zero correction
     ax *= ia
@@ -46,37 +50,36 @@ def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
     mx *= im
     my *= im
     mz *= im
-    # h = R_nb m
-    hx = (1.0 - 2.0 * (y * y + z * z)) * mx + 2.0 * (x * y - w * z) * my \
-        + 2.0 * (x * z + w * y) * mz
-    hy = 2.0 * (x * y + w * z) * mx + (1.0 - 2.0 * (x * x + z * z)) * my \
-        + 2.0 * (y * z - w * x) * mz
-    hz = 2.0 * (x * z - w * y) * mx + 2.0 * (y * z + w * x) * my \
-        + (1.0 - 2.0 * (x * x + y * y)) * mz
+    # h = R_nb m and the reference ref = [0, rn, hz], rn = |h_xy|. The reference's error
+    # m × R_nbᵀ ref equals R_nbᵀ (h × ref), h × ref = [hz (hy - rn), -hx hz, hx rn]: its
+    # vertical part hx·rn is the heading error (all that heading_only keeps, along up).
+    hx = c00 * mx + c01 * my + c02 * mz
+    hy = c10 * mx + c11 * my + c12 * mz
     rn = math.sqrt(hx * hx + hy * hy)
-    # predicted magnetic direction in body: R_nb^T [0, rn, hz]
-    vx = 2.0 * (x * y + w * z) * rn + 2.0 * (x * z - w * y) * hz
-    vy = (1.0 - 2.0 * (x * x + z * z)) * rn + 2.0 * (y * z + w * x) * hz
-    vz = 2.0 * (y * z - w * x) * rn + (1.0 - 2.0 * (x * x + y * y)) * hz
-    fx = my * vz - mz * vy
-    fy = mz * vx - mx * vz
-    fz = mx * vy - my * vx
     if heading_only:
-        d = fx * ux + fy * uy + fz * uz
+        d = hx * rn
         fx = d * ux
         fy = d * uy
         fz = d * uz
+    else:
+        hz = ux * mx + uy * my + uz * mz
+        n0 = hz * (hy - rn)
+        n1 = -hx * hz
+        n2 = hx * rn
+        fx = c00 * n0 + c10 * n1 + ux * n2
+        fy = c01 * n0 + c11 * n1 + uy * n2
+        fz = c02 * n0 + c12 * n1 + uz * n2
     b0 -= ki * (ex + fx) * dt
     b1 -= ki * (ey + fy) * dt
     b2 -= ki * (ez + fz) * dt
-    w, x, y, z, big2 = _exp_mul(w, x, y, z, (kp_acc * ex + kp_mag * fx) * dt,
+    w, x, y, z, redo2 = _exp_mul(w, x, y, z, (kp_acc * ex + kp_mag * fx) * dt,
                                 (kp_acc * ey + kp_mag * fy) * dt,
                                 (kp_acc * ez + kp_mag * fz) * dt, trig, True)
     flags = (1 if na == 0.0 else 0) | (2 if nm == 0.0 else 0)
-    return w, x, y, z, b0, b1, b2, flags, big1 or big2
+    return w, x, y, z, b0, b1, b2, flags, redo1 or redo2
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
                 kp_acc, kp_mag, ki, heading_only, max_dt):
     """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias.
@@ -95,7 +98,7 @@ def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
     return flags
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
                  q_out, b_out, flags):
     """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
@@ -130,44 +133,45 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
     b[0], b[1], b[2] = b0, b1, b2
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "arcp"})
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
                       q_out):
     """R independent filters over N samples, run-minor layout for SIMD over runs.
 
     ``dt`` (N,) s shared by the runs; ``gyro``, ``acc``, ``mag`` (N, 3, R); state ``q`` (4, R),
-    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Every run follows exactly the
-    arithmetic of ``mahony_step`` (flags are not recorded here).
+    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Every run follows the arithmetic
+    of ``mahony_step`` (flags are not recorded here). The vector loop turns ``q`` in place
+    and writes the new bias aside; a step to redo starts again from ``q_out[i - 1]``:
+    no copy of the state before each step.
     """
     n = dt.shape[0]
     r_count = q.shape[1]
-    q_prev = np.empty((4, r_count))
-    b_prev = np.empty((3, r_count))
-    big = np.zeros(r_count, np.bool_)
+    q_first = q.copy()  # the state before the first step (later: q_out[i - 1])
+    b_next = np.empty((3, r_count))
+    redo = np.zeros(r_count, np.bool_)
     one = np.empty(4)
     bias = np.empty(3)
     for i in range(n):
         h = dt[i]
         if h > 0.0 and h <= max_dt:
-            q_prev[:, :] = q
-            b_prev[:, :] = b
             for r in range(r_count):  # vectorised: no trigonometry, no branches
-                (q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], _,
-                 big[r]) = _core(q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r],
-                                 b[2, r], h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
-                                 acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
-                                 mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki,
-                                 heading_only, False)
-            for r in range(r_count):  # the rare large rotations, again with the exact form
-                if big[r]:
-                    one[:] = q_prev[:, r]
-                    bias[:] = b_prev[:, r]
+                (q[0, r], q[1, r], q[2, r], q[3, r], b_next[0, r], b_next[1, r],
+                 b_next[2, r], _, redo[r]) = _core(
+                    q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], h,
+                    gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
+                    acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r],
+                    kp_acc, kp_mag, ki, heading_only, False)
+            for r in range(r_count):  # the rare steps that need the exact forms, again
+                if redo[r]:
+                    one[:] = q_first[:, r] if i == 0 else q_out[i - 1, :, r]
+                    bias[:] = b[:, r]
                     mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
                                 acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
                                 mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki, heading_only,
                                 max_dt)
                     q[:, r] = one
-                    b[:, r] = bias
+                    b_next[:, r] = bias
+            b[:, :] = b_next
         elif h > max_dt:
             for r in range(r_count):
                 one[:] = q[:, r]
