@@ -247,29 +247,89 @@ def simulate_and_score(scenario, params: dict, seed: int, filters: Sequence[str]
     with a sun sensor also ``F.sunlit_rms_deg``, ``F.eclipse_rms_deg``, ``F.eclipse_max_deg``
     (NaN when there is no such sample); ``eclipse_fraction`` of the recording.
     """
+    result = simulate_and_score_batch([scenario], [params], [seed], filters, settle_s)[0]
+    if isinstance(result, BaseException):
+        raise result
+    return result
+
+
+def _filters_for(rec, filters):
     from gnomon.estimators import registry
+
+    if filters is not None:
+        return list(filters)
+    return [name for name in registry.names()
+            if all((rec.extra.get(k[6:]) is not None) if k.startswith("extra.")
+                   else getattr(rec, k, None) is not None for k in registry.get(name).needs)]
+
+
+def _filter_params(params: dict, name: str) -> dict:
+    return {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith(f"filter.{name}.")}
+
+
+def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
+                             settle_s: float = 300.0) -> list:
+    """``simulate_and_score`` for the runs of a chunk, as one call (its ``batch`` form).
+
+    Each run is simulated alone. Filters with a batch-over-runs kernel (those that
+    override ``Estimator.run_many``) get the runs that share the filter, its parameters
+    and their time stamps together, in one call; the others run as each recording is
+    made (which is then dropped unless a batch still needs it). Returns one metrics
+    dict per run, or the exception that failed that run."""
+    from gnomon.estimators import registry
+    from gnomon.estimators.base import Estimator
     from gnomon.scenarios import simulate
 
-    rec = simulate(scenario, rng_seed=seed)
-    if filters is None:
-        filters = []
-        for name in registry.names():
-            needs = registry.get(name).needs
-            if all((rec.extra.get(k[6:]) is not None) if k.startswith("extra.")
-                   else getattr(rec, k, None) is not None for k in needs):
-                filters.append(name)
-    out: dict[str, float] = {}
-    for name in filters:
-        fp = {k.split(".", 2)[2]: v for k, v in params.items()
-              if k.startswith(f"filter.{name}.")}
-        est = registry.create(name, fp).run(rec)
-        out.update({f"{name}.{k}": v for k, v in score_estimate(rec, est.q, settle_s).items()})
-    if rec.sun_valid is not None:
-        out["eclipse_fraction"] = float(np.mean(~rec.sun_valid))
-    return out
+    def batched(name):
+        return registry.get(name).run_many.__func__ is not Estimator.run_many.__func__
+
+    def score(k, name, q):
+        if isinstance(results[k], BaseException):
+            return
+        if isinstance(q, BaseException):
+            results[k] = q
+            return
+        scores = score_estimate(recs[k], q, settle_s)
+        results[k].update({f"{name}.{m}": v for m, v in scores.items()})
+
+    results: list = []
+    recs: dict = {}
+    groups: dict = {}
+    for k, (scenario, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+        results.append({})
+        try:
+            recs[k] = rec = simulate(scenario, rng_seed=seed)
+            if rec.sun_valid is not None:
+                results[k]["eclipse_fraction"] = float(np.mean(~rec.sun_valid))
+            for name in _filters_for(rec, filters):
+                fp = _filter_params(params_list[k], name)
+                if batched(name):
+                    key = (name, repr(sorted(fp.items())), rec.t.size, rec.t[0], rec.t[-1])
+                    groups.setdefault(key, (name, fp, []))[2].append(k)
+                else:
+                    score(k, name, registry.create(name, fp).run(rec).q)
+        except Exception as err:  # noqa: BLE001 - this run fails, the others go on
+            results[k] = err
+        if not any(k in ks for _, _, ks in groups.values()):
+            recs.pop(k, None)
+    for name, fp, ks in groups.values():
+        try:
+            cls = registry.get(name)
+            qs = cls.run_many([recs[k] for k in ks], cls.Params.from_dict(fp))
+        except Exception:  # noqa: BLE001 - then one run at a time, to fail only the bad one
+            qs = []
+            for k in ks:
+                try:
+                    qs.append(registry.create(name, fp).run(recs[k]).q)
+                except Exception as err:  # noqa: BLE001
+                    qs.append(err)
+        for k, q in zip(ks, qs, strict=True):
+            score(k, name, q)
+    return results
 
 
 simulate_and_score.accepts = _accepts_filter_key  # type: ignore[attr-defined]
+simulate_and_score.batch = simulate_and_score_batch  # type: ignore[attr-defined]
 
 
 def score_estimate(rec, q_est, settle_s: float = 0.0) -> dict:
@@ -316,36 +376,89 @@ class _Spec:
 _SCENARIO_CACHE: dict = {}
 
 
+def _new_row(spec: _Spec, index: int) -> dict:
+    return {"index": int(index), "seed": run_seed(spec.root_seed, index), "status": "ok",
+            "error": ""}
+
+
+def _prepare_run(spec: _Spec, index: int, row: dict):
+    """``(scenario, task_params, seed)`` of run ``index``; the drawn values go into ``row``
+    as they are drawn (a failed run's row still shows them). Raises on a bad draw."""
+    seed = row["seed"]
+    drawn = draw_parameters(spec.root_seed, index, spec.dists)
+    for k, v in drawn.items():
+        row[f"param.{k}"] = v
+    sc_over = {k: v for k, v in drawn.items() if k in spec.scenario_keys}
+    task_params = {k: v for k, v in drawn.items() if k not in spec.scenario_keys}
+    scenario = _load_scenario(spec.scenario)
+    if sc_over:
+        scenario = scenario.replace(sc_over)
+    return scenario, task_params, seed
+
+
+def _record(row: dict, metrics) -> None:
+    """Metrics into ``row``; an exception instead of metrics marks the run failed."""
+    if isinstance(metrics, BaseException):
+        row["status"] = "failed"
+        tb = traceback.extract_tb(metrics.__traceback__)
+        where = f" ({tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno})" if tb else ""
+        row["error"] = f"{type(metrics).__name__}: {metrics}{where}".replace("\n", " ")
+        return
+    for k, v in metrics.items():
+        row[k] = float(v) if isinstance(v, int | float | np.floating | np.integer) else v
+
+
 def _execute(spec: _Spec, index: int) -> dict:
     """Run ``index``; never raises (a failure becomes a row with status 'failed')."""
     t0 = time.perf_counter()
     c0 = time.process_time()
-    seed = run_seed(spec.root_seed, index)
-    row: dict[str, Any] = {"index": int(index), "seed": seed, "status": "ok", "error": ""}
+    row = _new_row(spec, index)
     try:
-        drawn = draw_parameters(spec.root_seed, index, spec.dists)
-        for k, v in drawn.items():
-            row[f"param.{k}"] = v
-        sc_over = {k: v for k, v in drawn.items() if k in spec.scenario_keys}
-        task_params = {k: v for k, v in drawn.items() if k not in spec.scenario_keys}
-        scenario = _load_scenario(spec.scenario)
-        if sc_over:
-            scenario = scenario.replace(sc_over)
-        metrics = _resolve_task(spec.task)(scenario, task_params, seed, **spec.task_options)
-        for k, v in metrics.items():
-            row[k] = float(v) if isinstance(v, int | float | np.floating | np.integer) else v
+        scenario, task_params, seed = _prepare_run(spec, index, row)
+        _record(row, _resolve_task(spec.task)(scenario, task_params, seed,
+                                              **spec.task_options))
     except Exception as err:  # noqa: BLE001 - a failing run is recorded, the campaign goes on
-        row["status"] = "failed"
-        tb = traceback.extract_tb(err.__traceback__)
-        where = f" ({tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno})" if tb else ""
-        row["error"] = f"{type(err).__name__}: {err}{where}".replace("\n", " ")
+        _record(row, err)
     row["elapsed_s"] = time.perf_counter() - t0
     row["cpu_s"] = time.process_time() - c0
     return row
 
 
 def _execute_chunk(spec: _Spec, indices: list[int]) -> list[dict]:
-    return [_execute(spec, i) for i in indices]
+    """The runs of a chunk. A task with a ``batch`` form (``task.batch(scenarios,
+    params_list, seeds, **options) -> list`` of metrics or exceptions, one per run)
+    gets them all in one call, where runs that share a filter share one batch-over-runs
+    kernel (``Estimator.run_many``); if that call raises, every run is done alone, so
+    a failure stays one row. ``elapsed_s``/``cpu_s`` of a batched run are its share of
+    the chunk's."""
+    batch = getattr(_resolve_task(spec.task), "batch", None)
+    if batch is None or len(indices) < 2:
+        return [_execute(spec, i) for i in indices]
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    rows, inputs = [], []
+    for index in indices:
+        row = _new_row(spec, index)
+        try:
+            inputs.append((row, *_prepare_run(spec, index, row)))
+        except Exception as err:  # noqa: BLE001 - recorded in its row
+            _record(row, err)
+        rows.append(row)
+    try:
+        results = batch([x[1] for x in inputs], [x[2] for x in inputs],
+                        [x[3] for x in inputs], **spec.task_options)
+        if len(results) != len(inputs):
+            raise ValueError(f"task.batch returned {len(results)} results for "
+                             f"{len(inputs)} runs")
+    except Exception:  # noqa: BLE001 - fall back to one run at a time
+        return [_execute(spec, i) for i in indices]
+    for (row, *_), metrics in zip(inputs, results, strict=True):
+        _record(row, metrics)
+    share_s = (time.perf_counter() - t0) / len(rows)
+    share_cpu = (time.process_time() - c0) / len(rows)
+    for row in rows:
+        row.update(elapsed_s=share_s, cpu_s=share_cpu)
+    return rows
 
 
 # --------------------------------------------------------------------------- storage

@@ -157,6 +157,15 @@ class Estimator:
     def run(self, rec: Recording) -> Estimate:  # pragma: no cover - every filter overrides
         raise NotImplementedError
 
+    @classmethod
+    def run_many(cls, recs: list[Recording], params: Params | None = None) -> list[np.ndarray]:
+        """``q`` (N_k, 4) of a fresh filter run on each of ``recs`` (Monte Carlo runs).
+
+        One by one here; a filter with a batch-over-runs kernel overrides it (same
+        results to 1e-12), and the campaign runner calls it for the runs of a chunk
+        that share the filter and its parameters."""
+        return [cls(params).run(rec).q for rec in recs]
+
     def get_state(self) -> dict:
         """A copy of the evolving state; ``set_state`` on a fresh instance resumes exactly."""
         import copy

@@ -124,6 +124,25 @@ class Mahony(Estimator):
         self.q = self.q / np.linalg.norm(self.q)
         return self.q
 
+    @classmethod
+    def run_many(cls, recs, params=None):
+        """``Estimator.run_many`` through ``run_batch`` when the recordings share their time
+        stamps (else one by one); each run starts from its own initial attitude, as ``run``."""
+        p = params or MahonyParams()
+        t = recs[0].t if recs else None
+        if len(recs) < 2 or any(r.t.shape != t.shape or not np.array_equal(r.t, t)
+                                for r in recs):
+            return [cls(p).run(rec).q for rec in recs]
+        q0 = []
+        for rec in recs:
+            f = cls(p)
+            f.check_inputs(rec)
+            f.initialise(rec.accel, rec.mag)
+            q0.append(f.q)
+        q = run_batch(t, np.stack([r.gyro for r in recs]), np.stack([r.accel for r in recs]),
+                      np.stack([r.mag for r in recs]), p, q0=np.array(q0))
+        return list(q)
+
     def run(self, rec: Recording) -> Estimate:
         """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
         from gnomon.kernels.mahony import mahony_batch
