@@ -175,7 +175,8 @@ def markdown_table(res: dict) -> str:
     """The result as a Markdown table, fastest first (the README's table is made by this)."""
     rows = sorted(res["results"].items(), key=lambda kv: -kv[1]["samples_per_s"])
     lines = [f"Measured by `gnomon bench` ({res['samples']:,} samples, median of "
-             f"{res['repeats']}, {res['machine']['cpu_count']} cores, "
+             f"{res['repeats']} rounds in random order, one thread, "
+             f"{res['machine']['cpu_count']}-core machine, "
              f"Python {res['machine']['python']}):", "",
              "| method | million samples/s | ratio to VQF updateBatch |",
              "| --- | ---: | ---: |"]
