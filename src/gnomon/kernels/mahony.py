@@ -142,7 +142,7 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
     ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Every run follows the arithmetic
     of ``mahony_step`` (flags are not recorded here). The vector loop turns ``q`` in place
     and writes the new bias aside; a step to redo starts again from ``q_out[i - 1]``:
-    no copy of the state before each step.
+    no copy of the state before each step, and no scan for redos when it counted none.
     """
     n = dt.shape[0]
     r_count = q.shape[1]
@@ -154,14 +154,17 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
     for i in range(n):
         h = dt[i]
         if h > 0.0 and h <= max_dt:
+            n_redo = 0
             for r in range(r_count):  # vectorised: no trigonometry, no branches
                 (q[0, r], q[1, r], q[2, r], q[3, r], b_next[0, r], b_next[1, r],
-                 b_next[2, r], _, redo[r]) = _core(
+                 b_next[2, r], _, red) = _core(
                     q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], h,
                     gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
                     acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r],
                     kp_acc, kp_mag, ki, heading_only, False)
-            for r in range(r_count):  # the rare steps that need the exact forms, again
+                redo[r] = red
+                n_redo += red
+            for r in range(r_count if n_redo else 0):  # the rare exact steps, again
                 if redo[r]:
                     one[:] = q_first[:, r] if i == 0 else q_out[i - 1, :, r]
                     bias[:] = b[:, r]
