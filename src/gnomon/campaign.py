@@ -60,7 +60,8 @@ import numpy as np
 from gnomon.errors import InputError
 
 __all__ = ["Distribution", "parse_distribution", "parse_vary", "run_seed", "draw_parameters",
-           "run_campaign", "run_one", "CampaignResult", "simulate_and_score", "read_results",
+           "run_campaign", "run_one", "CampaignResult", "simulate_and_score",
+           "simulate_and_score_batch", "read_results",
            "campaign_cli"]
 
 DEFAULT_TASK = "gnomon.campaign:simulate_and_score"
