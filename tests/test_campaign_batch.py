@@ -77,8 +77,8 @@ def _broken_batch(scenarios, params_list, seeds, settle_s=1.0):
     raise RuntimeError("batch form broken")
 
 
-def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls):
-    _imu_task.batch = _imu_task_batch
+def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls, monkeypatch):
+    monkeypatch.setattr(_imu_task, "batch", _imu_task_batch, raising=False)
     res = run_campaign("seed001", 6, tmp_path / "a", root_seed=2, executor="serial",
                        task=_imu_task, chunk_size=3, progress=False)
     assert batch_calls == [3, 3]
@@ -86,9 +86,8 @@ def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls)
     assert (t["status"] == "ok").all()
     alone = [_imu_task(None, {}, s)["q_end_w"] for s in t["seed"]]
     np.testing.assert_allclose(t["q_end_w"], alone, atol=1e-12)
-    _imu_task.batch = _broken_batch  # a raising batch form: every run is done alone
+    monkeypatch.setattr(_imu_task, "batch", _broken_batch)  # raises: each run alone
     res = run_campaign("seed001", 6, tmp_path / "b", root_seed=2, executor="serial",
                        task=_imu_task, chunk_size=3, progress=False)
     assert (res.table["status"] == "ok").all()
     np.testing.assert_allclose(res.table.sort_values("index")["q_end_w"], alone, atol=1e-12)
-    del _imu_task.batch

@@ -16,6 +16,7 @@ they were compiled from; it runs once, when this package is first imported.
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 _STAMP = "gnomon-kernels.sources"
@@ -39,7 +40,9 @@ def drop_stale_caches(package_dir: Path) -> bool:
         for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
             f.unlink(missing_ok=True)
         cache.mkdir(exist_ok=True)
-        stamp.write_text(digest.hexdigest())
+        tmp = cache / f"{_STAMP}.{os.getpid()}"
+        tmp.write_text(digest.hexdigest())
+        os.replace(tmp, stamp)  # atomic: a parallel worker never reads half a digest
     except OSError:
         return False
     return True
