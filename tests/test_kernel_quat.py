@@ -38,3 +38,33 @@ def test_large_rotations_and_non_unit_inputs_are_flagged_and_exact_with_trig():
     w, x, y, z, _ = exp_mul(*q_far, *small, True, True)
     assert abs(np.linalg.norm([w, x, y, z]) - 1.0) < 1e-15
     np.testing.assert_allclose([w, x, y, z], quat_mul(q, quat_from_rotvec(small)), atol=1e-15)
+
+
+def test_chain_products_equals_the_sequential_products():
+    from gnomon.kernels.quat import chain_products
+
+    rng = np.random.default_rng(2)
+    steps = quat_from_rotvec(rng.normal(0.0, 0.3, (500, 3)))
+    q0 = _random_unit(rng, 1)[0]
+    out = np.empty((501, 4))
+    chain_products(q0, steps, out)
+    q = q0
+    for k in range(500):
+        q = quat_mul(q, steps[k])
+        q = q / np.linalg.norm(q)
+        np.testing.assert_allclose(out[k + 1], q, atol=1e-14)
+
+
+def test_integrate_rates_follows_the_closed_form_of_a_constant_rate():
+    from gnomon.kernels.quat import integrate_rates
+
+    rng = np.random.default_rng(3)
+    q0 = _random_unit(rng, 1)[0]
+    for w in ([0.3, -0.2, 0.5], [20.0, -7.0, 11.0]):  # small steps (Taylor) and large (trig)
+        w = np.array(w)
+        dt, n = 0.01, 2000
+        out = np.empty((n + 1, 4))
+        integrate_rates(q0, np.tile(w, (n, 1)), dt, out)
+        exact = quat_mul(q0, quat_from_rotvec(np.arange(n + 1)[:, None] * dt * w))
+        sign = np.sign(np.sum(out * exact, axis=1))[:, None]
+        assert np.abs(out - sign * exact).max() < 1e-12

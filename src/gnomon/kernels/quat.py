@@ -1,12 +1,15 @@
-"""Scalar quaternion kernels shared by the compiled filters (numba, inlined).
+"""Quaternion kernels shared by the compiled filters and simulators (numba).
 
-``dcm`` gives the rotation matrix entries of ``q``. ``exp_mul`` is the one place where a
-filter turns ``q`` by a rotation vector:
-``q ⊗ exp(r)``, with a Taylor series for |r| < 0.05 rad that equals the
+Scalar helpers, inlined into the filters' loops: ``dcm`` gives the rotation matrix
+entries of ``q``. ``exp_mul`` is the one place where a filter turns ``q`` by a
+rotation vector: ``q ⊗ exp(r)``, with a Taylor series for |r| < 0.05 rad that equals the
 trigonometric form to double precision and a normalisation by one Newton step
 (so the batch-over-runs loops can use them without branches, see
 ``gnomon.kernels.mahony``, and a single filter stream has no sqrt or division
 on this part of its dependency chain).
+
+Array loops: ``chain_products`` and ``integrate_rates`` turn a sequence of
+rotations into an attitude history (simulators' truth, strapdown integration).
 """
 
 from __future__ import annotations
@@ -76,3 +79,34 @@ def dcm(w, x, y, z):
     return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
             2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
             2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+@njit(cache=True, error_model="numpy")
+def chain_products(q0, steps, out):
+    """Attitude from per-interval rotations: ``out[0] = q0``,
+    ``out[k + 1] = normalise(out[k] ⊗ steps[k])``; ``steps`` (N, 4), ``out`` (N + 1, 4)
+    (the truth integration of the simulators)."""
+    w, x, y, z = q0[0], q0[1], q0[2], q0[3]
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
+    for k in range(steps.shape[0]):
+        pw, px, py, pz = steps[k, 0], steps[k, 1], steps[k, 2], steps[k, 3]
+        nw = w * pw - x * px - y * py - z * pz
+        nx = w * px + x * pw + y * pz - z * py
+        ny = w * py - x * pz + y * pw + z * px
+        nz = w * pz + x * py - y * px + z * pw
+        s = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+        w, x, y, z = nw * s, nx * s, ny * s, nz * s
+        out[k + 1, 0], out[k + 1, 1], out[k + 1, 2], out[k + 1, 3] = w, x, y, z
+
+
+@njit(cache=True, error_model="numpy")
+def integrate_rates(q0, rate, dt, out):
+    """Strapdown integration: ``out[0] = q0``, ``out[k + 1] = normalise(out[k] ⊗
+    exp(rate[k] dt))``; ``rate`` (N, 3) rad/s in the body frame, ``dt`` s, ``out``
+    (N + 1, 4)."""
+    w, x, y, z = q0[0], q0[1], q0[2], q0[3]
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = w, x, y, z
+    for k in range(rate.shape[0]):
+        w, x, y, z, _ = exp_mul(w, x, y, z, rate[k, 0] * dt, rate[k, 1] * dt, rate[k, 2] * dt,
+                                True, True)
+        out[k + 1, 0], out[k + 1, 1], out[k + 1, 2], out[k + 1, 3] = w, x, y, z

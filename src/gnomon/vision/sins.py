@@ -92,33 +92,16 @@ def simulate_gyro(flight: HarmonicFlight, duration_s: float, rate_hz: float, bia
     return w + np.asarray(bias_rad_s, dtype=float) + noise
 
 
-def _integrate_list(q, gyro, dt):
-    w0, x0, y0, z0 = (float(a) for a in q)
-    out = [(w0, x0, y0, z0)]
-    for gx, gy, gz in gyro:
-        ax, ay, az = gx * dt, gy * dt, gz * dt
-        th = math.sqrt(ax * ax + ay * ay + az * az)
-        if th < 1e-8:
-            c, k = 1.0 - th * th / 8.0, 0.5 - th * th / 48.0
-        else:
-            c, k = math.cos(0.5 * th), math.sin(0.5 * th) / th
-        bw, bx, by, bz = c, k * ax, k * ay, k * az
-        w0, x0, y0, z0 = (w0 * bw - x0 * bx - y0 * by - z0 * bz,
-                          w0 * bx + x0 * bw + y0 * bz - z0 * by,
-                          w0 * by - x0 * bz + y0 * bw + z0 * bx,
-                          w0 * bz + x0 * by - y0 * bx + z0 * bw)
-        n = math.sqrt(w0 * w0 + x0 * x0 + y0 * y0 + z0 * z0)
-        w0, x0, y0, z0 = w0 / n, x0 / n, y0 / n, z0 / n
-        out.append((w0, x0, y0, z0))
-    return out
-
-
 def integrate_gyro(q0_nb, gyro_rad_s, dt_s: float) -> np.ndarray:
     """SINS attitude: ``q_{k+1} = q_k ⊗ exp(ω_k dt / 2)``; returns ``(n + 1, 4)`` ``q_nb``."""
     g = np.asarray(gyro_rad_s, dtype=float)
     if g.ndim != 2 or g.shape[1] != 3:
         raise InputError(f"gyro must have shape (n, 3), got {g.shape}", field="gyro")
-    return np.asarray(_integrate_list(np.asarray(q0_nb, float), g.tolist(), float(dt_s)))
+    from gnomon.kernels.quat import integrate_rates
+
+    out = np.empty((g.shape[0] + 1, 4))
+    integrate_rates(np.asarray(q0_nb, float), np.ascontiguousarray(g), float(dt_s), out)
+    return out
 
 
 def autonomy_time_s(strip_px: float, yaw_bias_rad_s: float, hfov_rad: float,
