@@ -85,6 +85,14 @@ trials, every method with its default parameters, causal, the benchmark's own me
 
 ## Speed
 
+One simulated 100 Hz recording (smooth random rotation, MEMS noise), every method on
+the same samples in the same process: interleaved rounds in a random order, medians,
+compilation excluded, freed memory kept for reuse by every method alike (see
+`gnomon.bench`). `gnomon-batch-mahony-R1000` is 1,000 Mahony filters at once
+(`gnomon.estimators.mahony.run_batch`, runs innermost for SIMD, one thread), one
+Monte Carlo run each. Run it yourself: `gnomon bench` (a few minutes; `--quick` for
+200,000 samples).
+
 {speed}
 """
     (ROOT / "docs" / "benchmarks.md").write_text(page)
