@@ -91,3 +91,20 @@ def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls,
                        task=_imu_task, chunk_size=3, progress=False)
     assert (res.table["status"] == "ok").all()
     np.testing.assert_allclose(res.table.sort_values("index")["q_end_w"], alone, atol=1e-12)
+
+
+def test_imu_campaign_runs_share_the_batch_kernel(tmp_path, batch_calls):
+    """``gnomon campaign imu-handheld --filter mahony``: chunks of runs in one kernel call,
+    each run scored as it would be alone."""
+    vary = {"duration_s": "20", "imu.gyro_bias_std_rad_s": "uniform(0.0, 0.02)"}
+    res = run_campaign("imu-handheld", 6, tmp_path, vary, root_seed=5, executor="serial",
+                       filters=["mahony"], chunk_size=3, progress=False)
+    assert batch_calls == [3, 3]
+    t = res.table.sort_values("index").reset_index(drop=True)
+    assert (t["status"] == "ok").all()
+    assert t["mahony.rms_deg"].between(0.0, 5.0).all()
+    for i in (0, 4):
+        alone = run_campaign("imu-handheld", 6, None, vary, root_seed=5, only=i,
+                             filters=["mahony"], progress=False).table
+        assert alone["mahony.rms_deg"].iloc[0] == pytest.approx(t["mahony.rms_deg"][i],
+                                                                rel=1e-9)

@@ -239,12 +239,13 @@ def _accepts_filter_key(key: str) -> bool:
 
 
 def simulate_and_score(scenario, params: dict, seed: int, filters: Sequence[str] | None = None,
-                       settle_s: float = 300.0) -> dict:
+                       settle_s: float | None = None) -> dict:
     """The default task: simulate ``scenario`` with ``seed``, run ``filters`` and score them.
 
     ``params`` may hold ``filter.NAME.PARAM`` values. ``filters`` None: every registered
     filter whose inputs the recording has (sorted by name). Metrics per filter ``F``
-    (degrees, samples after ``settle_s``): ``F.rms_deg``, ``F.max_deg``, ``F.mean_deg``;
+    (degrees, samples after ``settle_s``; None: the scenario's ``settle_s``, else 300 s):
+    ``F.rms_deg``, ``F.max_deg``, ``F.mean_deg``;
     with a sun sensor also ``F.sunlit_rms_deg``, ``F.eclipse_rms_deg``, ``F.eclipse_max_deg``
     (NaN when there is no such sample); ``eclipse_fraction`` of the recording.
     """
@@ -268,8 +269,14 @@ def _filter_params(params: dict, name: str) -> dict:
     return {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith(f"filter.{name}.")}
 
 
+def _settle_s(scenario, settle_s):
+    if settle_s is not None:
+        return settle_s
+    return float(getattr(scenario, "config", {}).get("settle_s", 300.0))
+
+
 def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
-                             settle_s: float = 300.0) -> list:
+                             settle_s: float | None = None) -> list:
     """``simulate_and_score`` for the runs of a chunk, as one call (its ``batch`` form).
 
     Each run is simulated alone. Filters with a batch-over-runs kernel (those that
@@ -290,7 +297,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
         if isinstance(q, BaseException):
             results[k] = q
             return
-        scores = score_estimate(recs[k], q, settle_s)
+        scores = score_estimate(recs[k], q, _settle_s(scenarios[k], settle_s))
         results[k].update({f"{name}.{m}": v for m, v in scores.items()})
 
     results: list = []

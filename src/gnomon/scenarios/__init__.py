@@ -1,11 +1,15 @@
-"""Scenarios: a YAML file (or a shipped preset) that fully describes a simulated spacecraft run.
+"""Scenarios: a YAML file (or a shipped preset) that fully describes a simulated run.
+
+Two kinds: a spacecraft in orbit (the default; ``gnomon.scenarios.simulator``) and,
+with ``kind: imu``, an IMU on the ground (``gnomon.simulation.ahrs``).
 
 >>> sc = load_scenario("seed000")                 # a preset name or a path to a .yaml file
 >>> sc2 = sc.replace({"sensors.magnetometer.noise_nT": 500.0, "duration_s": 600.0})
 >>> rec = simulate(sc2)                           # -> gnomon.recording.Recording
 
-Keys, defaults and units: :data:`gnomon.scenarios.schema.SCHEMA` (``describe()``
-prints them). Unknown keys are rejected by their dotted name, before any simulation.
+Keys, defaults and units: :data:`gnomon.scenarios.schema.SCHEMA` and
+``IMU_SCHEMA`` (``describe(kind)`` lists them). Unknown keys are rejected by their
+dotted name, before any simulation.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Any
 import yaml
 
 from gnomon.errors import InputError
-from gnomon.scenarios.schema import SCHEMA, flatten, get_dotted, set_dotted, validate
+from gnomon.scenarios.schema import KINDS, flatten, get_dotted, schema_of, set_dotted, validate
 
 __all__ = ["Scenario", "load_scenario", "list_presets", "simulate", "describe"]
 
@@ -41,9 +45,14 @@ class Scenario:
     def name(self) -> str:
         return self.config["name"]
 
+    @property
+    def kind(self) -> str:
+        """``"spacecraft"`` or ``"imu"``: which schema and simulator the scenario uses."""
+        return self.config["kind"]
+
     def get(self, key: str) -> Any:
         """Value of a dotted key, e.g. ``"sensors.gyro.bias_deg_s"``."""
-        set_dotted({}, key, None)  # raises InputError for unknown keys
+        set_dotted({}, key, None, schema_of(self.config))  # raises InputError if unknown
         return copy.deepcopy(get_dotted(self.config, key))
 
     def replace(self, overrides: dict | None = None, **kw) -> Scenario:
@@ -57,7 +66,9 @@ class Scenario:
         items = dict(overrides or {})
         items.update({k.replace("__", "."): v for k, v in kw.items()})
         for key, value in items.items():
-            set_dotted(d, key, value)
+            if key == "kind" and value != self.kind:
+                raise InputError(f"a {self.kind} scenario cannot become {value!r}", field=key)
+            set_dotted(d, key, value, schema_of(self.config))
         return Scenario(validate(d), self.source)
 
     def to_dict(self) -> dict:
@@ -102,8 +113,11 @@ def load_scenario(name_or_path: str | pathlib.Path) -> Scenario:
         raise err.with_file(source) from None
 
 
-def describe() -> list[tuple[str, str, str, Any, str]]:
-    """Rows ``(dotted key, kind, unit, default, description)`` of the scenario schema."""
+def describe(kind: str = "spacecraft") -> list[tuple[str, str, str, Any, str]]:
+    """Rows ``(dotted key, kind, unit, default, description)`` of the schema of scenarios
+    of ``kind`` (``"spacecraft"`` or ``"imu"``)."""
+    if kind not in KINDS:
+        raise InputError(f"expected one of {sorted(KINDS)}, got {kind!r}", field="kind")
     rows = []
 
     def walk(node, prefix):
@@ -113,7 +127,7 @@ def describe() -> list[tuple[str, str, str, Any, str]]:
             else:
                 rows.append((f"{prefix}{k}", v.kind, v.unit, v.default, v.doc))
 
-    walk(SCHEMA, "")
+    walk(KINDS[kind], "")
     return rows
 
 

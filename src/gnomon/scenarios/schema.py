@@ -5,6 +5,9 @@ defaults, rejecting unknown keys by their dotted name (``sensors.gyro.bias_deg``
 and checking every leaf's type and range, then the cross-field rules (step
 divides duration, orbit above the atmosphere, inertia positive definite). Every
 error is one ``InputError`` naming the key, raised before any simulation.
+
+Two schemas, chosen by the top-level ``kind``: ``SCHEMA`` for a spacecraft in orbit
+(the default) and ``IMU_SCHEMA`` for an IMU on the ground (``kind: imu``).
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.frames import parse_epoch
 
-__all__ = ["SCHEMA", "defaults", "validate", "flatten", "set_dotted", "get_dotted"]
+__all__ = ["SCHEMA", "IMU_SCHEMA", "KINDS", "schema_of", "defaults", "validate", "flatten",
+           "set_dotted", "get_dotted"]
 
 
 class Leaf:
@@ -101,6 +105,8 @@ class Leaf:
 
 L = Leaf
 SCHEMA: dict = {
+    "kind": L("enum", "spacecraft", choices=("spacecraft",),
+              doc="what is simulated: a spacecraft in orbit (or imu: see IMU_SCHEMA)"),
     "name": L("str", "", doc="scenario name"),
     "description": L("str", "", doc="free text"),
     "epoch": L("epoch", "2026-03-20T00:00:00Z", "UTC", "start time, ISO-8601 UTC"),
@@ -202,6 +208,51 @@ SCHEMA: dict = {
 }
 
 
+# A hand-held or vehicle IMU (gyro + accelerometer + magnetometer) on the ground,
+# simulated by ``gnomon.simulation.ahrs`` (``kind: imu``; navigation frame ENU).
+IMU_SCHEMA: dict = {
+    "kind": L("enum", "imu", choices=("imu",), doc="what is simulated: an IMU on the ground"),
+    "name": L("str", "", doc="scenario name"),
+    "description": L("str", "", doc="free text"),
+    "duration_s": L("float", 120.0, "s", "length of the run", min=0, min_open=True),
+    "seed": L("int", 0, doc="root seed of every random draw", min=0),
+    "settle_s": L("float", 10.0, "s", "campaign scores start this long after the start",
+                  min=0),
+    "imu": {
+        "rate_hz": L("float", 100.0, "Hz", "sampling rate", min=0, min_open=True),
+        "rate_rms_rad_s": L("float", 0.5, "rad/s", "RMS body rate per axis", min=0),
+        "rate_band_low_hz": L("float", 0.02, "Hz", "lowest frequency of the rotation", min=0,
+                              min_open=True),
+        "rate_band_high_hz": L("float", 0.3, "Hz", "highest frequency of the rotation", min=0,
+                               min_open=True),
+        "rest_s": L("float", 0.0, "s", "at rest at the start", min=0),
+        "gyro_noise_rad_s_rt_hz": L("float", 3e-4, "rad/s/sqrt(Hz)", "gyro white noise",
+                                    min=0),
+        "gyro_bias_std_rad_s": L("float", 0.01, "rad/s", "constant gyro bias, sigma per axis",
+                                 min=0),
+        "gyro_bias_rw_rad_s_rt_s": L("float", 2e-5, "rad/s/sqrt(s)", "gyro bias random walk",
+                                     min=0),
+        "accel_noise_m_s2": L("float", 0.02, "m/s^2", "accelerometer noise per sample", min=0),
+        "mag_noise_uT": L("float", 0.3, "uT", "magnetometer noise per sample", min=0),
+        "field_uT": L("float", 50.0, "uT", "magnitude of the Earth's field", min=0,
+                      min_open=True),
+        "inclination_deg": L("float", 60.0, "deg", "magnetic inclination (tan I = Z/H)",
+                             min=0),
+        "linear_accel_rms_m_s2": L("float", 0.0, "m/s^2", "linear acceleration per axis",
+                                   min=0),
+        "mag_disturbance_uT": L("float", 0.0, "uT", "magnetic disturbance", min=0),
+    },
+}
+KINDS = {"spacecraft": SCHEMA, "imu": IMU_SCHEMA}
+
+
+def schema_of(config: dict | None) -> dict:
+    """The schema of a scenario mapping: by its ``kind`` (no kind: a spacecraft)."""
+    kind = (config or {}).get("kind", "spacecraft") if isinstance(config, dict) else "spacecraft"
+    if kind not in KINDS:
+        raise InputError(f"expected one of {sorted(KINDS)}, got {kind!r}", field="kind")
+    return KINDS[kind]
+
 def defaults(schema: dict = SCHEMA) -> dict:
     """The default scenario as a nested dict."""
     return {k: (defaults(v) if isinstance(v, dict) else copy.deepcopy(v.default))
@@ -220,8 +271,8 @@ def flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def _leaf(key: str):
-    node: Any = SCHEMA
+def _leaf(key: str, schema: dict = SCHEMA):
+    node: Any = schema
     parts = key.split(".")
     for i, p in enumerate(parts):
         if not isinstance(node, dict) or p not in node:
@@ -240,9 +291,10 @@ def get_dotted(d: dict, key: str):
     return node
 
 
-def set_dotted(d: dict, key: str, value) -> None:
-    """Set ``d[a][b][c] = value`` for ``key = 'a.b.c'``; the key must name a schema leaf."""
-    node = _leaf(key)
+def set_dotted(d: dict, key: str, value, schema: dict = SCHEMA) -> None:
+    """Set ``d[a][b][c] = value`` for ``key = 'a.b.c'``; the key must name a leaf of
+    ``schema``."""
+    node = _leaf(key, schema)
     if isinstance(node, dict):
         raise InputError(f"{key!r} is a section, not a value", field=key)
     parts = key.split(".")
@@ -270,11 +322,21 @@ def validate(user: dict) -> dict:
     """Merge ``user`` over the defaults and validate it; returns the full nested dict."""
     from gnomon.environment.orbit import MIN_ALTITUDE_M, R_EARTH, TLEOrbit
 
-    cfg = defaults()
-    _merge(user or {}, SCHEMA, cfg, "")
+    schema = schema_of(user)
+    cfg = defaults(schema)
+    _merge(user or {}, schema, cfg, "")
     # the defaults themselves are checked too (inertia as a full matrix, etc.)
     for key, value in flatten(cfg).items():
-        set_dotted(cfg, key, _leaf(key).check(key, value))
+        set_dotted(cfg, key, _leaf(key, schema).check(key, value), schema)
+    if schema is IMU_SCHEMA:
+        lo, hi = cfg["imu"]["rate_band_low_hz"], cfg["imu"]["rate_band_high_hz"]
+        if not lo < hi:
+            raise InputError(f"must be above rate_band_low_hz ({lo:g}), got {hi:g}",
+                             field="imu.rate_band_high_hz")
+        if cfg["imu"]["inclination_deg"] >= 90.0:
+            raise InputError(f"must be < 90, got {cfg['imu']['inclination_deg']:g}",
+                             field="imu.inclination_deg")
+        return cfg
     n = cfg["duration_s"] / cfg["step_s"]
     if abs(n - round(n)) > 1e-9 * max(1.0, n):
         raise InputError(f"step {cfg['step_s']:g} s does not divide the duration "

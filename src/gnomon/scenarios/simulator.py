@@ -39,7 +39,7 @@ from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_dcm, quat_from_euler, quat_mul, quat_rotate
 from gnomon.sensors import accelerometer_model, gyro_model, magnetometer_model, sun_sensor_model
 
-__all__ = ["build_orbit", "simulate"]
+__all__ = ["build_orbit", "simulate", "simulate_imu"]
 
 _D2R = np.pi / 180.0
 
@@ -72,6 +72,8 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
     """Simulate a validated :class:`~gnomon.scenarios.Scenario`; ``rng_seed`` overrides its seed."""
     cfg = scenario.config
     seed = cfg["seed"] if rng_seed is None else int(rng_seed)
+    if cfg["kind"] == "imu":
+        return simulate_imu(cfg, seed)
     g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia = (
         np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))
     epoch = parse_epoch(cfg["epoch"])
@@ -172,3 +174,20 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
                      sun_valid=valid, q_true=q_ob, frames={"reference": "o", "body": "b"},
                      source=f"gnomon.simulate {cfg['name'] or scenario.source} seed={seed}",
                      extra=extra)
+
+
+def simulate_imu(cfg: dict, seed: int) -> Recording:
+    """A ``kind: imu`` scenario through ``gnomon.simulation.ahrs.simulate_ahrs`` (ENU,
+    ``q_true`` = ``q_nb``; every draw from ``numpy.random.default_rng(seed)``)."""
+    from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs
+
+    m = cfg["imu"]
+    p = AhrsSimParams(
+        duration_s=cfg["duration_s"], rate_hz=m["rate_hz"], rate_rms=m["rate_rms_rad_s"],
+        rate_band_hz=(m["rate_band_low_hz"], m["rate_band_high_hz"]), rest_s=m["rest_s"],
+        gyro_noise=m["gyro_noise_rad_s_rt_hz"], gyro_bias_std=m["gyro_bias_std_rad_s"],
+        bias_rw=m["gyro_bias_rw_rad_s_rt_s"], accel_noise=m["accel_noise_m_s2"],
+        mag_noise_uT=m["mag_noise_uT"], field_uT=m["field_uT"],
+        inclination_deg=m["inclination_deg"], linear_accel_rms=m["linear_accel_rms_m_s2"],
+        mag_disturbance_uT=m["mag_disturbance_uT"])
+    return simulate_ahrs(p, np.random.default_rng(seed))
