@@ -103,8 +103,20 @@ def test_imu_campaign_runs_share_the_batch_kernel(tmp_path, batch_calls):
     t = res.table.sort_values("index").reset_index(drop=True)
     assert (t["status"] == "ok").all()
     assert t["mahony.rms_deg"].between(0.0, 5.0).all()
+    # heading and inclination parts of the same error (BROAD's split): each below the total
+    assert (t["mahony.inclination_rms_deg"] <= t["mahony.rms_deg"] + 1e-9).all()
+    assert (t["mahony.heading_rms_deg"] <= t["mahony.rms_deg"] + 1e-9).all()
     for i in (0, 4):
         alone = run_campaign("imu-handheld", 6, None, vary, root_seed=5, only=i,
                              filters=["mahony"], progress=False).table
         assert alone["mahony.rms_deg"].iloc[0] == pytest.approx(t["mahony.rms_deg"][i],
                                                                 rel=1e-9)
+
+
+def test_tilt_only_filters_are_judged_by_inclination(tmp_path):
+    res = run_campaign("imu-handheld", 2, tmp_path, {"duration_s": "30"}, root_seed=1,
+                       executor="serial", filters=["tilt-cf", "mahony"], progress=False)
+    t = res.table
+    assert (t["tilt-cf.rms_deg"] > 30.0).all()  # its heading is free
+    assert (t["tilt-cf.inclination_rms_deg"] < 0.2 * t["tilt-cf.rms_deg"]).all()
+    assert (t["tilt-cf.inclination_rms_deg"] < 10.0).all()

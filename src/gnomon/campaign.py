@@ -341,13 +341,21 @@ simulate_and_score.batch = simulate_and_score_batch  # type: ignore[attr-defined
 
 
 def score_estimate(rec, q_est, settle_s: float = 0.0) -> dict:
-    """Error statistics (deg) of ``q_est`` against ``rec.q_true`` after ``settle_s``."""
-    from gnomon.metrics import error_angle_rad
+    """Error statistics (deg) of ``q_est`` against ``rec.q_true`` after ``settle_s``.
+
+    With a vertical reference axis (ENU/NWU recordings) also the RMS of BROAD's
+    ``heading_rms_deg`` and ``inclination_rms_deg`` (a tilt-only filter is judged by
+    the latter)."""
+    from gnomon.metrics import broad_errors_rad, error_angle_rad
 
     err = np.degrees(error_angle_rad(rec.q_true, q_est))
     m = (rec.t - rec.t[0]) >= settle_s
     m &= np.isfinite(err)
     out = {"rms_deg": _rms(err[m]), "max_deg": _max(err[m]), "mean_deg": _mean(err[m])}
+    if rec.frames.get("reference") in ("ENU", "NWU"):
+        parts = broad_errors_rad(rec.q_true, q_est)
+        out.update(heading_rms_deg=_rms(np.degrees(parts["heading"][m])),
+                   inclination_rms_deg=_rms(np.degrees(parts["inclination"][m])))
     if rec.sun_valid is not None:
         sun = m & rec.sun_valid
         ecl = m & ~rec.sun_valid
