@@ -1,5 +1,7 @@
 """Run a scenario: orbit -> environment (field, Sun, shadow) -> attitude dynamics -> sensors.
 
+(A ``kind: imu`` scenario goes to ``simulate_imu`` instead: ``gnomon.simulation.ahrs``.)
+
 The output :class:`gnomon.recording.Recording` (frames ``{"reference": "o", "body": "b"}``):
 
 * ``gyro`` (N, 3) rad/s: measured ``w_ib_b``; ``mag`` (N, 3) nT in b; ``sun`` (N, 3)
