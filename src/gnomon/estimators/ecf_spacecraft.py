@@ -261,6 +261,20 @@ class VectorPairFilter(Estimator):
         elif self.q is None:
             self.q = initial_q_ob(pairs)
 
+    def _predict(self, dt_s, gyro, w_io_o, second: str):
+        """First part of every readable ``update``: reset the flags (``second``: the name of
+        the second pair's flag), then propagate with the gyro over ``dt_s``. Returns
+        whether the gyro was usable, or None when the sample has no interval (no step)."""
+        if self.q is None:
+            self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.flags = {"mag_unusable": False, second: False, "gap": False, "coast": False}
+        if not (0.0 < dt_s < 1e300):
+            return None
+        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
+        if not ok_g:
+            self.flags["coast"] = True
+        return ok_g
+
     @staticmethod
     def _outputs(n: int):
         """``q_out`` (n, 4), ``b_out`` (n, 3), ``flags`` (n, 4) int8 for a batch kernel."""
@@ -289,15 +303,8 @@ class ExplicitSpacecraftCF(VectorPairFilter):
     def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
         """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
         p = self.params
-        if self.q is None:
-            self.q = np.array([1.0, 0.0, 0.0, 0.0])
-        self.flags = {"mag_unusable": False, "sun_unusable": False, "gap": False,
-                      "coast": False}
-        if not (0.0 < dt_s < 1e300):
+        if self._predict(dt_s, gyro, w_io_o, "sun_unusable") is None:
             return self.q
-        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
-        if not ok_g:
-            self.flags["coast"] = True
         if dt_s > p.max_dt_s:
             self.flags.update(gap=True, coast=True)
             return self.q

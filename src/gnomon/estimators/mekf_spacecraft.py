@@ -38,7 +38,6 @@ import numpy as np
 from gnomon.estimators.base import Estimate, Params, param
 from gnomon.estimators.ecf_spacecraft import (
     VectorPairFilter,
-    _propagate,
     _unit,
 )
 from gnomon.recording import Recording
@@ -127,16 +126,10 @@ class MagGyroMEKF(VectorPairFilter):
 
     def _update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted):
         p = self.params
-        if self.q is None:
-            self.q = np.array([1.0, 0.0, 0.0, 0.0])
-        self.flags = {"mag_unusable": False, "sun_unusable": False, "gap": False,
-                      "coast": False}
-        if not (0.0 < dt_s < 1e300):
+        ok_g = self._predict(dt_s, gyro, w_io_o, "sun_unusable")
+        if ok_g is None:
             return self.q
-        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
         w = np.asarray(gyro, float) - self.bias if ok_g else np.zeros(3)
-        if not ok_g:
-            self.flags["coast"] = True
         F = np.zeros((6, 6))
         F[:3, :3] = -skew(w)
         F[:3, 3:] = -np.eye(3)

@@ -40,7 +40,6 @@ from gnomon.estimators.ecf_spacecraft import (
     SUN_SUBSTITUTES,
     VectorPairFilter,
     _correct,
-    _propagate,
     _unit,
     initial_q_ob,
 )
@@ -150,15 +149,8 @@ class QuaternionCF(VectorPairFilter):
     def update(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b=None, mag_o=None):
         """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
         p = self.params
-        if self.q is None:
-            self.q = np.array([1.0, 0.0, 0.0, 0.0])
-        self.flags = {"mag_unusable": False, "mes_unusable": False, "gap": False,
-                      "coast": False}
-        if not (0.0 < dt_s < 1e300):
+        if self._predict(dt_s, gyro, w_io_o, "mes_unusable") is None:
             return self.q
-        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
-        if not ok_g:
-            self.flags["coast"] = True
         if dt_s > p.max_dt_s:
             self.flags.update(gap=True, coast=True)
             return self.q
