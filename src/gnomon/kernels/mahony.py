@@ -133,6 +133,14 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
     b[0], b[1], b[2] = b0, b1, b2
 
 
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
+def _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki, heading_only, max_dt):
+    """``mahony_step`` on ``one``, ``bias`` with sample ``i`` of run ``r`` (inputs (N, 3, R))."""
+    mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
+                acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r], kp_acc,
+                kp_mag, ki, heading_only, max_dt)
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
                       q_out):
@@ -168,10 +176,8 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
                 if redo[r]:
                     one[:] = q_first[:, r] if i == 0 else q_out[i - 1, :, r]
                     bias[:] = b[:, r]
-                    mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
-                                acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
-                                mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki, heading_only,
-                                max_dt)
+                    _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki,
+                              heading_only, max_dt)
                     q[:, r] = one
                     b_next[:, r] = bias
             b[:, :] = b_next
@@ -179,9 +185,7 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
             for r in range(r_count):
                 one[:] = q[:, r]
                 bias[:] = b[:, r]
-                mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r],
-                            acc[i, 0, r], acc[i, 1, r], acc[i, 2, r], mag[i, 0, r],
-                            mag[i, 1, r], mag[i, 2, r], kp_acc, kp_mag, ki, heading_only,
-                            max_dt)
+                _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki,
+                          heading_only, max_dt)
                 q[:, r] = one
         q_out[i, :, :] = q
