@@ -3,8 +3,15 @@
 import numpy as np
 import pytest
 
+from gnomon.kernels import drop_stale_caches
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
+
+
+def pytest_configure(config):
+    # kernels compiled from sources that have changed since (an inlined helper) are dropped
+    drop_stale_caches()
+
 
 G = 9.81
 FIELD_ENU_UT = np.array([0.0, 20.0, -45.0])  # north and down, inclination ~66 deg

@@ -19,3 +19,24 @@ def test_caches_dropped_when_any_source_changes(tmp_path):
     (tmp_path / "quat.py").write_text("A = 3\n")  # a helper changes, mahony.py does not
     assert drop_stale_caches(tmp_path)
     assert not list(cache.glob("*.nb?"))
+
+
+def test_importing_the_kernels_package_touches_no_file(tmp_path):
+    import subprocess
+    import sys
+
+    from gnomon import kernels
+
+    stamp = kernels.PACKAGE_DIR / "__pycache__" / "gnomon-kernels.sources"
+    before = stamp.stat().st_mtime_ns if stamp.exists() else None
+    (kernels.PACKAGE_DIR / "__pycache__").mkdir(exist_ok=True)
+    marker = kernels.PACKAGE_DIR / "__pycache__" / "zz-test-marker.nbi"
+    marker.write_text("x")
+    try:
+        subprocess.run([sys.executable, "-c", "import gnomon.kernels, gnomon.kernels.quat"],
+                       check=True)
+        assert marker.exists()  # a stale-looking cache file survives a plain import
+        after = stamp.stat().st_mtime_ns if stamp.exists() else None
+        assert after == before
+    finally:
+        marker.unlink(missing_ok=True)

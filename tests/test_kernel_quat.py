@@ -68,3 +68,71 @@ def test_integrate_rates_follows_the_closed_form_of_a_constant_rate():
         exact = quat_mul(q0, quat_from_rotvec(np.arange(n + 1)[:, None] * dt * w))
         sign = np.sign(np.sum(out * exact, axis=1))[:, None]
         assert np.abs(out - sign * exact).max() < 1e-12
+
+
+# ---------------------------------------------------------------- the kernel toolbox
+def _scipy(q):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(np.roll(q, -1))
+
+
+def test_toolbox_products_and_rotations_agree_with_scipy():
+    from gnomon.kernels import quat as kq
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        p, q = _random_unit(rng, 2)
+        v = rng.normal(size=3)
+        pq = np.array(kq.mul(*p, *q))
+        ref = np.roll((_scipy(p) * _scipy(q)).as_quat(), 1)
+        assert min(np.abs(pq - ref).max(), np.abs(pq + ref).max()) < 1e-15
+        np.testing.assert_allclose(kq.mul_arr(p, q), pq, atol=0)
+        np.testing.assert_allclose(kq.rotate(*q, *v), _scipy(q).apply(v), atol=1e-14)
+        np.testing.assert_allclose(kq.rotate_inv(*q, *v), _scipy(q).inv().apply(v), atol=1e-14)
+        np.testing.assert_allclose(kq.rotate_arr(q, v), kq.rotate(*q, *v), atol=0)
+        np.testing.assert_allclose(kq.rotate_inv_arr(q, v), kq.rotate_inv(*q, *v), atol=0)
+        np.testing.assert_allclose(np.reshape(kq.dcm(*q), (3, 3)), _scipy(q).as_matrix(),
+                                   atol=1e-15)
+        n = np.array(kq.normalised(*(3.0 * q)))
+        np.testing.assert_allclose(n, q, atol=1e-15)
+
+
+def test_toolbox_exponential_agrees_with_scipy_at_small_and_large_angles():
+    from scipy.spatial.transform import Rotation
+
+    from gnomon.kernels.quat import exp
+
+    rng = np.random.default_rng(4)
+    for angle in (0.0, 1e-9, 1e-4, 0.0499, 0.05, 0.3, 3.0):
+        axis = rng.normal(size=3)
+        r = angle * axis / np.linalg.norm(axis)
+        ref = np.roll(Rotation.from_rotvec(r).as_quat(), 1)
+        np.testing.assert_allclose(exp(*r), ref, atol=2e-16)
+
+
+def test_linalg_toolbox_agrees_with_numpy():
+    from gnomon.kernels import linalg as kl
+
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        a, b = rng.normal(size=(2, 3))
+        np.testing.assert_allclose(kl.cross(*a, *b), np.cross(a, b), atol=1e-15)
+        np.testing.assert_allclose(kl.cross_arr(a, b), np.cross(a, b), atol=1e-15)
+        np.testing.assert_allclose(kl.skew_arr(a) @ b, np.cross(a, b), atol=1e-15)
+        m = rng.normal(size=(3, 3)) + 3.0 * np.eye(3)
+        det, *inv = kl.inv3(*m.ravel())
+        assert abs(det - np.linalg.det(m)) < 1e-12 * abs(det)
+        np.testing.assert_allclose(np.reshape(inv, (3, 3)), np.linalg.inv(m), rtol=1e-12,
+                                   atol=1e-14)
+        out = np.empty((3, 3))
+        assert kl.inv3_into(m, out) == det
+        np.testing.assert_allclose(out, np.linalg.inv(m), rtol=1e-12, atol=1e-14)
+        flat = np.empty(9)
+        kl.inv3_into(m.ravel(), flat)
+        np.testing.assert_allclose(flat, out.ravel(), atol=0)
+        P = rng.normal(size=(6, 6))
+        S = P.copy()
+        kl.symmetrise(S)
+        np.testing.assert_allclose(S, 0.5 * (P + P.T), atol=0)
+    assert kl.clip(3.0, 2.0) == 2.0 and kl.clip(-3.0, 2.0) == -2.0 and kl.clip(1.5, 2.0) == 1.5

@@ -360,6 +360,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from gnomon import kernels
+
+    if kernels.in_source_checkout():  # kernel sources may have changed under their caches
+        kernels.drop_stale_caches()
     parser = build_parser()
     args = parser.parse_args(None if argv is None else [str(a) for a in argv])
     if not getattr(args, "func", None):

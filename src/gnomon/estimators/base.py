@@ -5,9 +5,28 @@
   converts command-line strings; ``validate`` checks ranges.
 * ``Estimator``: holds ``params`` and the evolving state. ``reset()`` returns it
   to a fresh instance's state, ``update(...)`` processes one sample (streaming
-  use, signature per filter), ``run(recording)`` processes a whole
-  ``Recording`` and returns an ``Estimate`` with the attitude and the filter's
-  internal signals (bias estimate, rejection flags, ...).
+  use), ``run(recording)`` processes a whole ``Recording`` and returns an
+  ``Estimate`` with the attitude and the filter's internal signals (bias
+  estimate, rejection flags, ...).
+
+Streaming ``update``: one argument order for every filter,
+
+    update(dt_s, gyro_rad_s=None, accel_m_s2=None, mag_uT=None, *, <other inputs>) -> q
+
+``dt_s`` is the time since the previous sample (s; 0 at the first), then the
+IMU's three sensors in the body frame (rad/s, m/s², µT); a filter that needs
+other inputs (sun sensor, reference vectors, orbital rate, a measured
+quaternion) takes them as keyword-only arguments whose names say frame and
+unit (``sun_b``, ``mag_ref_o_uT``, ``w_io_o_rad_s``). ``None`` means "no new
+sample of that sensor at this instant": the filter only uses a measurement
+when it is new. The return value is the attitude estimate after the sample,
+``q_rb`` (4,) in the filter's reference frame (``reference_frame``).
+
+Adding a filter: its module in ``gnomon.estimators`` (``Params`` + ``Estimator``
+with the readable ``update`` and ``run``), its compiled twin in ``gnomon.kernels``
+(optional), one line in ``gnomon.estimators.registry``, and its tests. The
+command line, benchmarks, campaigns and docs' filter tables find it through
+the registry and these class attributes.
 """
 
 from __future__ import annotations
@@ -62,7 +81,12 @@ def _type_hints(cls) -> dict:
 
 @dataclass(frozen=True)
 class Params:
-    """Base class of every filter's tuning values (frozen; SI units; see ``describe``)."""
+    """Base class of every filter's tuning values (frozen; SI units; see ``describe``).
+
+    ``renamed`` maps former parameter names to their new ones: an old name raises an
+    error that names the new one (a renamed unit must not be read silently)."""
+
+    renamed: ClassVar[dict[str, str]] = {}
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -87,6 +111,9 @@ class Params:
         known = {f.name for f in dataclasses.fields(cls)}
         kwargs = {}
         for key, value in values.items():
+            if key in cls.renamed:
+                raise InputError(f"renamed: use {cls.renamed[key]!r} (check its unit with "
+                                 f"`gnomon filters`)", field=key)
             if key not in known:
                 raise InputError(
                     f"unknown parameter for {cls.__qualname__}; known: {', '.join(sorted(known))}",
@@ -135,9 +162,17 @@ class Estimator:
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    #: Where the method comes from (shown in the filter tables).
+    paper: ClassVar[str] = ""
     Params: ClassVar[type[Params]] = Params
     #: Recording fields the filter needs (checked by ``run`` with a clear error).
     needs: ClassVar[tuple[str, ...]] = ("gyro",)
+    #: ``"imu"`` (a body moving near the Earth, navigation frame ENU) or ``"spacecraft"``
+    #: (a satellite, orbital frame): which benchmarks, scenarios and defaults apply.
+    kind: ClassVar[str] = "imu"
+    #: The reference frame the filter estimates against; ``check_inputs`` refuses a
+    #: recording whose ``frames['reference']`` names another one (None: any).
+    reference_frame: ClassVar[str | None] = None
     #: Attributes that make up the evolving state (saved by ``get_state``).
     state_fields: ClassVar[tuple[str, ...]] = ()
 
@@ -195,10 +230,17 @@ class Estimator:
         return dt
 
     def check_inputs(self, rec: Recording) -> None:
-        """Raise ``InputError`` naming the first field the filter needs that ``rec`` lacks."""
+        """Raise ``InputError`` naming the first field the filter needs that ``rec`` lacks,
+        or the reference frame when it is not the filter's ``reference_frame``."""
         for name in self.needs:
             present = (rec.extra.get(name[6:]) is not None if name.startswith("extra.")
                        else getattr(rec, name) is not None)
             if not present:
                 raise InputError(f"filter '{self.name}' needs it; the recording has none",
                                  field=name, file=rec.source or None)
+        ref = rec.frames.get("reference")
+        if self.reference_frame is not None and ref is not None and ref != self.reference_frame:
+            raise InputError(f"filter '{self.name}' estimates against {self.reference_frame}; "
+                             f"the recording's reference frame is {ref!r} (convert the truth "
+                             f"and frames at the reader, see docs/conventions.md)",
+                             field="frames.reference", file=rec.source or None)

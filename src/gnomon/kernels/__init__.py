@@ -1,16 +1,43 @@
-"""Numba-compiled hot loops, imported lazily by the estimators' ``run``.
+"""Numba-compiled hot loops: the fast twins of the estimators' readable ``update``.
 
-Each kernel has a readable twin (the estimator's per-sample ``update``) and a
-test comparing the two sample by sample. Kernels take every argument
-explicitly (an omitted default costs ~37 µs per call in numba) and write into
-preallocated output arrays; ``cache=True`` keeps the compiled code on disk.
+Every kernel module has a readable twin (the estimator's per-sample ``update`` in
+``gnomon.estimators``) and a test comparing the two sample by sample. Kernels never
+import estimator modules; estimators import their kernel module (which imports
+numba; ``import gnomon`` does not).
 
-numba keys a cached kernel on its own module file only: a kernel that inlines a
-helper from another module (``quat.exp_mul`` in ``mahony``) would keep running
-the old helper after that file changes in a source checkout (an install rewrites
-every file, which numba does notice). ``drop_stale_caches`` therefore removes
-this package's cache files whenever any kernel source differs from the sources
-they were compiled from; it runs once, when this package is first imported.
+The shape of a filter's kernel (as VQF's ``Params`` → ``Coefficients`` → ``State``):
+
+* **Coefficients**: a ``typing.NamedTuple`` of floats (and tuples of floats), built
+  once from the ``Params`` and the sample time by the module's ``coefficients(...)``.
+  numba passes it by value: immutable, one argument instead of dozens of positional
+  numbers, and its fields are read by name (``c.k_mag``).
+* **State**: a numpy structured dtype (``STATE``) whose fields are named scalars,
+  vectors and matrices (``q_gyr (4,)``, ``bias (3,)``, ``P (3, 3)``, ``rest_t``). A
+  filter holds it as an array of one element, ``np.zeros(1, STATE)``; the kernel
+  takes ``s = state[0]``, a numba record that reads and writes the array in place
+  (``s.delta += k * dis``, ``s.q_gyr[0] = w``). Why a record: numba compiles its
+  fields to fixed offsets, as fast as the flat arrays with offset constants it
+  replaces; ``cache=True`` works with it (numba's ``jitclass`` cannot be cached and
+  compiles anew in every process); and the readable twin works on the very same
+  object through ``state.view(np.recarray)[0]`` with the same field names, so a
+  state saved by ``get_state`` is the one either twin continues from.
+* **Step**: one function per phase (gyro prediction, accelerometer, magnetometer,
+  other sensors), each short enough to read on one screen, called in order by the
+  per-sample step; the batch loop over samples calls the step and writes outputs.
+
+Helpers shared by all kernels live in ``quat`` (quaternion product, exponential,
+rotation, normalisation) and ``linalg`` (cross products, 3x3 inverse, clipping,
+symmetrising): a kernel never writes them again.
+
+Kernels take every argument explicitly (an omitted default costs ~37 µs per call in
+numba), write into preallocated output arrays, and use ``cache=True`` (compiled code
+on disk). numba keys a cached kernel on its own module file only: a kernel that
+inlines a helper from another module (``quat.exp_mul``) would keep running the old
+helper after that file changes in a source checkout (an installed package never
+changes). ``drop_stale_caches`` removes this package's cache files when any kernel
+source differs from the sources they were compiled from; the test suite and the
+command line call it in a source checkout (``python -m gnomon.kernels`` does it by
+hand). Importing this package has no side effect.
 """
 
 from __future__ import annotations
@@ -19,10 +46,20 @@ import hashlib
 import os
 from pathlib import Path
 
+__all__ = ["drop_stale_caches", "in_source_checkout", "PACKAGE_DIR"]
+
 _STAMP = "gnomon-kernels.sources"
+PACKAGE_DIR = Path(__file__).resolve().parent
 
 
-def drop_stale_caches(package_dir: Path) -> bool:
+def in_source_checkout(package_dir: Path = PACKAGE_DIR) -> bool:
+    """Whether gnomon runs from a git checkout (``src/gnomon/kernels`` under a work tree),
+    where kernel sources can change under their compiled caches."""
+    root = package_dir.parents[2]
+    return (root / ".git").exists() and (root / "pyproject.toml").is_file()
+
+
+def drop_stale_caches(package_dir: Path = PACKAGE_DIR) -> bool:
     """Delete ``package_dir/__pycache__/*.nbi|*.nbc`` if the ``*.py`` sources changed since
     the last call (a digest is kept beside them). Returns whether caches were dropped;
     a read-only directory is left alone."""
@@ -46,6 +83,3 @@ def drop_stale_caches(package_dir: Path) -> bool:
     except OSError:
         return False
     return True
-
-
-drop_stale_caches(Path(__file__).resolve().parent)

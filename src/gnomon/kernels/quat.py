@@ -1,10 +1,17 @@
-"""Quaternion kernels shared by the compiled filters and simulators (numba).
+"""Quaternion kernels shared by the compiled filters and simulators (numba): the one
+place where a kernel multiplies, rotates, exponentiates or normalises a quaternion.
 
-Scalar helpers, inlined into the filters' loops: ``dcm`` gives the rotation matrix
-entries of ``q``. ``exp_mul`` is the one place where a filter turns ``q`` by a
-rotation vector: ``q ⊗ exp(r)``, with a Taylor series for |r| < 0.05 rad that equals the
-trigonometric form to double precision and a normalisation by one Newton step
-(so the batch-over-runs loops can use them without branches, see
+Conventions (``docs/conventions.md``): Hamilton, scalar first ``[w, x, y, z]``;
+``R(q)`` is the matrix with ``R(q) v = q ⊗ [0, v] ⊗ q*``, so for ``q = q_ab`` it maps
+b-coordinates to a-coordinates (``rotate``) and ``R(q)ᵀ`` maps back (``rotate_inv``).
+
+Scalar helpers take and return plain floats (tuples), are inlined into the filters'
+loops and keep the state in registers: ``mul``, ``normalised``, ``exp``, ``rotate``,
+``rotate_inv``, ``dcm``. ``mul_arr`` / ``rotate_arr`` / ``rotate_inv_arr`` are their array
+forms for the matrix-style kernels (EKFs). ``exp_mul`` is the one place where a filter
+turns ``q`` by a rotation vector: ``q ⊗ exp(r)``, with a Taylor series for
+|r| < 0.05 rad that equals the trigonometric form to double precision and a
+normalisation by one Newton step (so the batch-over-runs loops can use them without branches, see
 ``gnomon.kernels.mahony``, and a single filter stream has no sqrt or division
 on this part of its dependency chain).
 
@@ -16,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 SMALL_TH2 = 0.0025  # (0.05 rad)²: below it the Taylor form equals the trigonometric one
@@ -71,6 +79,77 @@ def exp_mul(w, x, y, z, rx, ry, rz, trig, normalise):
 def rotate_by(q, rx, ry, rz):
     """``q <- normalise(q ⊗ exp([rx, ry, rz]))`` in place on the array ``q`` (4,)."""
     q[0], q[1], q[2], q[3], _ = exp_mul(q[0], q[1], q[2], q[3], rx, ry, rz, True, True)
+
+
+@njit(inline="always")
+def mul(pw, px, py, pz, qw, qx, qy, qz):
+    """Hamilton product ``p ⊗ q`` as a tuple ``(w, x, y, z)``."""
+    return (pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw)
+
+
+@njit(inline="always")
+def mul_arr(p, q):
+    """Hamilton product ``p ⊗ q`` of arrays (4,) as a new array (4,)."""
+    out = np.empty(4)
+    out[0], out[1], out[2], out[3] = mul(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
+    return out
+
+
+@njit(inline="always", error_model="numpy")
+def normalised(w, x, y, z):
+    """``q / |q|`` (exact ``1/sqrt``) as a tuple."""
+    s = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return w * s, x * s, y * s, z * s
+
+
+@njit(inline="always", error_model="numpy")
+def exp(rx, ry, rz):
+    """``exp(r)``: the unit quaternion of the rotation vector ``r`` (rad), as a tuple.
+
+    Exact to double precision (``exp_mul`` applied to the identity)."""
+    w, x, y, z, _ = exp_mul(1.0, 0.0, 0.0, 0.0, rx, ry, rz, True, False)
+    return w, x, y, z
+
+
+@njit(inline="always")
+def rotate(w, x, y, z, vx, vy, vz):
+    """``R(q) v`` for a unit ``q`` (for ``q = q_ab``: v from b- to a-coordinates)."""
+    return ((1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y - w * z) * vy
+            + 2.0 * (x * z + w * y) * vz,
+            2.0 * (x * y + w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
+            + 2.0 * (y * z - w * x) * vz,
+            2.0 * (x * z - w * y) * vx + 2.0 * (y * z + w * x) * vy
+            + (1.0 - 2.0 * (x * x + y * y)) * vz)
+
+
+@njit(inline="always")
+def rotate_inv(w, x, y, z, vx, vy, vz):
+    """``R(q)ᵀ v`` for a unit ``q`` (for ``q = q_ab``: v from a- to b-coordinates)."""
+    return ((1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy
+            + 2.0 * (x * z - w * y) * vz,
+            2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
+            + 2.0 * (y * z + w * x) * vz,
+            2.0 * (x * z + w * y) * vx + 2.0 * (y * z - w * x) * vy
+            + (1.0 - 2.0 * (x * x + y * y)) * vz)
+
+
+@njit(inline="always")
+def rotate_arr(q, v):
+    """``R(q) v`` of arrays ``q`` (4,), ``v`` (3,) as a new array (3,)."""
+    out = np.empty(3)
+    out[0], out[1], out[2] = rotate(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return out
+
+
+@njit(inline="always")
+def rotate_inv_arr(q, v):
+    """``R(q)ᵀ v`` of arrays ``q`` (4,), ``v`` (3,) as a new array (3,)."""
+    out = np.empty(3)
+    out[0], out[1], out[2] = rotate_inv(q[0], q[1], q[2], q[3], v[0], v[1], v[2])
+    return out
 
 
 @njit(inline="always")

@@ -1,0 +1,87 @@
+"""Small linear algebra for the compiled filters (numba): 3-vectors and 3x3 matrices.
+
+The one place where a kernel takes a cross product, inverts or solves a 3x3 system,
+clips a value or symmetrises a covariance. Scalar forms take and return floats
+(tuples; inlined, kept in registers); ``*_arr`` forms work on numpy arrays for the
+matrix-style kernels. Written by hand because numba's ``np.linalg`` calls LAPACK
+through a Python-level wrapper per call (microseconds, more than a whole filter
+step) and a 3x3 inverse by cofactors is exact enough for the well-conditioned
+innovation covariances of these filters (tested against ``numpy.linalg``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(inline="always")
+def cross(ax, ay, az, bx, by, bz):
+    """``a × b`` as a tuple."""
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+
+
+@njit(inline="always")
+def cross_arr(a, b):
+    """``a × b`` of arrays (3,) as a new array (3,)."""
+    out = np.empty(3)
+    out[0], out[1], out[2] = cross(a[0], a[1], a[2], b[0], b[1], b[2])
+    return out
+
+
+@njit(inline="always")
+def skew_arr(v):
+    """``[v×]`` (3, 3): ``skew_arr(a) @ b == a × b``."""
+    m = np.zeros((3, 3))
+    m[0, 1] = -v[2]
+    m[0, 2] = v[1]
+    m[1, 0] = v[2]
+    m[1, 2] = -v[0]
+    m[2, 0] = -v[1]
+    m[2, 1] = v[0]
+    return m
+
+
+@njit(inline="always")
+def clip(v, lim):
+    """``v`` clipped to ``[-lim, lim]``."""
+    return lim if v > lim else (-lim if v < -lim else v)
+
+
+@njit(inline="always", error_model="numpy")
+def inv3(a, b, c, d, e, f, g, h, i):
+    """Inverse of the row-major 3x3 matrix ``[[a, b, c], [d, e, f], [g, h, i]]`` by
+    cofactors: ``(det, i00, i01, i02, i10, i11, i12, i20, i21, i22)``. The entries are
+    inf/NaN when ``det`` is 0: callers test ``det`` first where that can happen."""
+    c0 = e * i - f * h
+    c1 = -(d * i - f * g)
+    c2 = d * h - e * g
+    det = a * c0 + b * c1 + c * c2
+    s = 1.0 / det
+    return (det, c0 * s, -(b * i - c * h) * s, (b * f - c * e) * s,
+            c1 * s, (a * i - c * g) * s, -(a * f - c * d) * s,
+            c2 * s, -(a * h - b * g) * s, (a * e - b * d) * s)
+
+
+@njit(inline="always", error_model="numpy")
+def inv3_into(m, out):
+    """``out <- m⁻¹`` for row-major 3x3 arrays (``(3, 3)`` or flat ``(9,)``); returns
+    ``det`` (``out`` is not meaningful when it is 0)."""
+    a = m.ravel()
+    r = inv3(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8])
+    o = out.ravel()
+    for k in range(9):
+        o[k] = r[k + 1]
+    return r[0]
+
+
+@njit(inline="always")
+def symmetrise(P):
+    """``P <- (P + Pᵀ) / 2`` in place (n, n): keeps a covariance symmetric against the
+    rounding of the short update forms over millions of steps."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            m = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = m
+            P[j, i] = m

@@ -1,0 +1,118 @@
+"""Store, or compare against, every registered filter's output on fixed inputs.
+
+A refactoring that must not change behaviour is checked with it:
+
+    python tools/behaviour_snapshot.py save    SNAPSHOT_DIR   # before
+    python tools/behaviour_snapshot.py compare SNAPSHOT_DIR   # after: exit 1 on a change
+
+Inputs: the BROAD excerpts in ``tests/data/broad``, the full BROAD trials in
+``../shared/data/broad`` where present, and short simulated runs of every scenario
+preset (seeded). Every registered filter runs on every input that holds the
+sensors it needs; its attitude ``q`` and all its numeric signals are stored. ``compare``
+reports, per filter and input, the largest attitude difference (rad) and the largest
+signal difference, and fails above ``--tol`` (default 1e-9 rad for the attitude, the
+same relative to a signal's scale).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM_DURATION_S = {"imu-handheld": 30.0, "seed000": 3000.0, "seed001": 1500.0}
+
+
+def inputs():
+    from gnomon.io import read
+    from gnomon.scenarios import list_presets, load_scenario, simulate
+
+    for path in sorted((ROOT / "tests/data/broad").glob("*_excerpt.*")):
+        yield path.stem, read(path)
+    full = ROOT.parent / "shared/data/broad"  # the full trials, where present
+    for path in sorted(full.glob("*.hdf5")) + sorted(full.glob("*.mat")):
+        yield f"broad-{path.stem}", read(path)
+    for name in list_presets():
+        sc = load_scenario(name)
+        sc = sc.replace({"duration_s": SIM_DURATION_S.get(name, 600.0)})
+        yield f"sim-{name}", simulate(sc, rng_seed=7)
+
+
+def outputs() -> dict[str, np.ndarray]:
+    from gnomon.errors import InputError
+    from gnomon.estimators import registry
+
+    out = {}
+    for label, rec in inputs():
+        for name in registry.names():
+            f = registry.create(name)
+            try:
+                f.check_inputs(rec)
+                est = f.run(rec)
+            except InputError as err:
+                print(f"  {name} on {label}: not run ({err})")
+                continue
+            out[f"{label}|{name}|q"] = np.asarray(est.q, float)
+            for key, val in est.signals.items():
+                a = np.asarray(val)
+                if a.dtype.kind in "fbiu":
+                    out[f"{label}|{name}|{key}"] = a.astype(float)
+            print(f"  {name} on {label}: {len(rec)} samples")
+    return out
+
+
+def angle(q1, q2):
+    """Rotation angle between unit quaternions (rad), accurate near zero: the chord
+    ``|q1 - q2| = 2 sin(θ/4)`` of the nearer sign."""
+    sign = np.where(np.sum(q1 * q2, axis=-1) < 0.0, -1.0, 1.0)[..., None]
+    chord = np.linalg.norm(q1 - sign * q2, axis=-1)
+    return 4.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("action", choices=("save", "compare"))
+    ap.add_argument("dir", type=Path)
+    ap.add_argument("--tol", type=float, default=1e-9)
+    args = ap.parse_args(argv)
+    file = args.dir / "filters.npz"
+    now = outputs()
+    if args.action == "save":
+        args.dir.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(file, **now)
+        print(f"saved {len(now)} arrays to {file}")
+        return 0
+    before = dict(np.load(file))
+    worst, failed = 0.0, []
+    for key in sorted(set(before) | set(now)):
+        if key not in now or key not in before:
+            failed.append(f"{key}: {'missing now' if key not in now else 'new'}")
+            continue
+        a, b = before[key], now[key]
+        if a.shape != b.shape:
+            failed.append(f"{key}: shape {a.shape} -> {b.shape}")
+            continue
+        if key.endswith("|q"):
+            d = float(np.nanmax(angle(a, b))) if a.size else 0.0
+        else:
+            scale = max(1.0, float(np.nanmax(np.abs(a))) if a.size else 1.0)
+            same_nan = np.array_equal(np.isnan(a), np.isnan(b))
+            d = float(np.nanmax(np.abs(a - b))) / scale if a.size else 0.0
+            if not same_nan:
+                d = np.inf
+        worst = max(worst, d) if key.endswith("|q") else worst
+        print(f"{d:10.3e}  {key}")
+        if not d <= args.tol:
+            failed.append(f"{key}: {d:.3e}")
+    print(f"largest attitude difference: {worst:.3e} rad over {len(now)} arrays")
+    if failed:
+        print("CHANGED:\n  " + "\n  ".join(failed))
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
