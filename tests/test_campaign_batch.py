@@ -35,7 +35,7 @@ def batch_calls(monkeypatch):
 
 def test_run_many_equals_runs_one_by_one(batch_calls):
     recs = [_imu_run(s) for s in range(5)]
-    p = MahonyParams(kp_acc_rad_s=0.9, ki_per_s=0.02)
+    p = MahonyParams(kp_acc_rad_s=0.9, ki_rad_s2=0.02)
     qs = Mahony.run_many(recs, p)
     assert batch_calls == [5]
     for rec, q in zip(recs, qs, strict=True):

@@ -29,7 +29,7 @@ def test_version_and_filters(capsys):
     assert main(["filters", "--json"]) == 0
     table = json.loads(capsys.readouterr().out)
     mahony = next(f for f in table if f["name"] == "mahony")
-    assert {p["name"] for p in mahony["params"]} >= {"kp_acc_rad_s", "ki_per_s"}
+    assert {p["name"] for p in mahony["params"]} >= {"kp_acc_rad_s", "ki_rad_s2"}
 
 
 def test_benchmark_broad_json_contract(capsys):

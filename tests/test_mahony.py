@@ -13,7 +13,7 @@ from gnomon.rotation import quat_from_euler
 def test_kernel_equals_reference_sample_by_sample(imu_factory):
     rec = imu_factory(quat_from_euler([0.3, -0.2, 2.0]), [0.2, -0.5, 0.4], n=3000,
                       gyro_bias=[0.01, -0.02, 0.005], noise=0.01, seed=3)
-    params = MahonyParams(kp_acc_rad_s=1.0, kp_mag_rad_s=0.5, ki_per_s=0.05,
+    params = MahonyParams(kp_acc_rad_s=1.0, kp_mag_rad_s=0.5, ki_rad_s2=0.05,
                           mag_heading_only=True)
     est = Mahony(params).run(rec)
     ref = Mahony(params)
@@ -29,7 +29,7 @@ def test_converges_and_estimates_bias(imu_factory, heading_only):
     bias = np.array([0.02, -0.01, 0.03])  # rad/s
     rec = imu_factory(quat_from_euler([0.5, 0.3, -1.0]), [0.0, 0.0, 0.0], n=30000, fs=100,
                       gyro_bias=bias)
-    est = Mahony(kp_acc_rad_s=1.0, kp_mag_rad_s=1.0, ki_per_s=0.1,
+    est = Mahony(kp_acc_rad_s=1.0, kp_mag_rad_s=1.0, ki_rad_s2=0.1,
                  mag_heading_only=heading_only).run(rec)
     np.testing.assert_allclose(est.signals["bias_rad_s"][-1], bias, atol=1e-4)
     assert np.degrees(error_angle_rad(rec.q_true[-1], est.q[-1])) < 0.01
@@ -37,7 +37,7 @@ def test_converges_and_estimates_bias(imu_factory, heading_only):
 
 def test_tracks_rotation_with_initial_error(imu_factory):
     rec = imu_factory(quat_from_euler([0.1, 0.2, 0.3]), [0.3, 0.2, -0.6], n=6000, fs=100)
-    f = Mahony(kp_acc_rad_s=2.0, kp_mag_rad_s=2.0, ki_per_s=0.0)
+    f = Mahony(kp_acc_rad_s=2.0, kp_mag_rad_s=2.0, ki_rad_s2=0.0)
     f.q = quat_from_euler([0.4, -0.3, 1.0])  # 40+ degrees off
     est = f.run(rec)
     err = np.degrees(error_angle_rad(rec.q_true, est.q))
@@ -69,8 +69,11 @@ def test_zero_vectors_and_gaps_coast_without_nan():
 def test_params_reject_unknown_and_bad_values():
     with pytest.raises(InputError, match="kp_ac"):
         MahonyParams.from_dict({"kp_ac": 1.0})
-    with pytest.raises(InputError, match="ki_per_s"):
-        MahonyParams(ki_per_s=-1.0)
+    with pytest.raises(InputError, match="ki_rad_s2"):
+        MahonyParams(ki_rad_s2=-1.0)
+    with pytest.raises(InputError, match="renamed: use 'ki_rad_s2'") as err:
+        MahonyParams.from_dict({"ki_per_s": 0.01})  # the old name carried a wrong unit
+    assert err.value.field == "ki_per_s"
     p = MahonyParams.from_dict({"kp_acc_rad_s": "0.5", "mag_heading_only": "false"})
     assert p.kp_acc_rad_s == 0.5 and p.mag_heading_only is False
     with pytest.raises(InputError, match="mag_heading_only"):
@@ -88,7 +91,7 @@ def test_batch_over_runs_equals_single_runs(imu_factory):
 
     recs = [imu_factory(quat_from_euler([0.1 * k, -0.2, 1.0 + k]), [0.2, -0.1 * k, 0.3],
                         n=500, noise=0.01, seed=k) for k in range(5)]
-    params = MahonyParams(kp_acc_rad_s=0.8, ki_per_s=0.05)
+    params = MahonyParams(kp_acc_rad_s=0.8, ki_rad_s2=0.05)
     q = run_batch(recs[0].t, np.stack([r.gyro for r in recs]), np.stack([r.accel for r in recs]),
                   np.stack([r.mag for r in recs]), params)
     assert q.shape == (5, 500, 4)
@@ -111,7 +114,7 @@ def test_batch_redoes_the_steps_that_need_exact_forms(imu_factory, heading_only)
     acc[2, 50:55] = 0.0
     q0 = np.stack([quat_from_euler([0.1, 0.2, 0.3 * k]) for k in range(4)])
     q0[3] *= 1.001  # far from unit norm: normalised by 1/sqrt, not by the Newton step
-    params = MahonyParams(kp_acc_rad_s=0.8, kp_mag_rad_s=0.4, ki_per_s=0.05,
+    params = MahonyParams(kp_acc_rad_s=0.8, kp_mag_rad_s=0.4, ki_rad_s2=0.05,
                           mag_heading_only=heading_only)
     q = run_batch(t, np.stack([r.gyro for r in recs]), acc, np.stack([r.mag for r in recs]),
                   params, q0=q0)

@@ -44,7 +44,7 @@ from scipy import signal
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.recording import Recording
-from gnomon.rotation import quat_from_euler
+from gnomon.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
 
 __all__ = [
     "first_order_filter",
@@ -221,25 +221,6 @@ class _SpeedState:
         return np.array([self.dvdt, w[2] * v, -w[1] * v])
 
 
-def _expq(rv) -> np.ndarray:
-    th = math.sqrt(rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2])
-    if th < 1e-4:
-        th2 = th * th
-        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
-    else:
-        k = math.sin(0.5 * th) / th
-    return np.array([math.cos(0.5 * th), k * rv[0], k * rv[1], k * rv[2]])
-
-
-def _qmul(p, q) -> np.ndarray:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return np.array([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw])
-
-
 # ---------------------------------------------------------------- 3D estimator
 @dataclass(frozen=True)
 class TiltCFParams(Params):
@@ -273,49 +254,69 @@ class TiltCFParams(Params):
 class TiltComplementaryFilter(Estimator):
     """3D tilt complementary filter in quaternion form (seed 004); estimate ``q_nb``, n = ENU.
 
-    Streaming: ``update(gyro_rad_s, accel_m_s2, dt_s, speed_m_s=nan)`` per sample
-    (the first call initialises from the accelerometer, ignoring the gyro). Batch:
-    ``run(rec)`` (numba kernel ``gnomon.kernels.tilt_cf``; initial tilt from the mean
-    of the first ``init_samples`` accelerometer samples). Signals: ``acc_rejected``
-    (N,) bool (rejection or a zero accelerometer vector), ``bias_rad_s`` (N, 3).
+    Streaming: ``update(dt_s, gyro_rad_s, accel_m_s2=None, *, speed_m_s=nan)`` per sample
+    (the first call initialises from the accelerometer, ignoring the gyro; ``accel_m_s2``
+    None: no new accelerometer sample, gyro only). Batch: ``run(rec)`` (numba kernel
+    ``gnomon.kernels.tilt_cf``; initial tilt from the mean of the first ``init_samples``
+    accelerometer samples). Signals: ``acc_rejected`` (N,) bool (rejection or a zero
+    accelerometer vector), ``bias_rad_s`` (N, 3). State: ``state``, a one-element
+    ``gnomon.kernels.tilt_cf.STATE`` array (None before the first sample).
     """
 
     name = "tilt-cf"
     summary = "3D tilt complementary filter, first order (+ optional bias integral), seed 004"
+    paper = "seed 004"
+    kind = "imu"
+    reference_frame = "ENU"
     Params = TiltCFParams
     needs = ("gyro", "accel")
-    state_fields = ("q", "bias_rad_s", "acc_rejected", "t_last")
+    state_fields = ("state", "t_last", "_t", "_speed")
 
     def reset(self) -> None:
-        self.q = None
-        self.bias_rad_s = np.zeros(3)
-        self.acc_rejected = False
+        self.state = None  # kernels.tilt_cf.STATE (1,), set by the first sample
         self.t_last = None  # s, last sample processed by ``run``
         self._t = 0.0
         self._speed = _SpeedState()
 
+    @property
+    def q(self) -> np.ndarray | None:
+        """Current ``q_nb`` (4,) (None before the first sample)."""
+        return None if self.state is None else self.state["q"][0].copy()
+
+    @property
+    def bias_rad_s(self) -> np.ndarray:
+        """Current gyro-bias estimate (3,) rad/s."""
+        return np.zeros(3) if self.state is None else self.state["bias"][0].copy()
+
+    @property
+    def acc_rejected(self) -> bool:
+        """Whether the last sample's accelerometer was not used."""
+        return False if self.state is None else bool(self.state["acc_rejected"][0])
+
     # -- one sample, readable (the kernel's reference) --
-    def update(self, gyro_rad_s, accel_m_s2, dt_s: float, speed_m_s: float = math.nan
-               ) -> np.ndarray:
-        """Process one sample; returns ``q_nb`` (4,). ``dt_s``: time since the previous sample."""
+    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, *,
+               speed_m_s: float = math.nan) -> np.ndarray:
+        """Process one sample; returns ``q_nb`` (4,). ``dt_s``: time since the previous
+        sample (s); ``gyro_rad_s``, ``accel_m_s2`` (3,) body; ``speed_m_s`` forward speed
+        (NaN: no new speed sample) for ``speed_compensation``."""
+        from gnomon.kernels.tilt_cf import new_state
+
         w = np.asarray(gyro_rad_s, dtype=float)
-        f = np.array(accel_m_s2, dtype=float)
-        if self.q is None:
-            self._t = 0.0
-        else:
-            self._t += dt_s
+        f = None if accel_m_s2 is None else np.array(accel_m_s2, dtype=float)
+        self._t = 0.0 if self.state is None else self._t + dt_s
         if self.params.speed_compensation:
             self._speed.step(self._t, speed_m_s)
-            f = f - self._speed.a_lin(w)
-        if self.q is None:
-            self.q = quat_from_accel(f)
-            self.acc_rejected = not np.linalg.norm(f) > 0.0
-            return self.q.copy()
-        self.q, self.bias_rad_s, self.acc_rejected = _tilt_step_py(
-            self.q, self.bias_rad_s, w, f, dt_s, self.params.time_constant_s,
-            self.params.bias_gain_1_s2, self.params.accel_rejection_rel,
-            self.params.gravity_m_s2)
-        return self.q.copy()
+            if f is not None:
+                f = f - self._speed.a_lin(w)
+        if self.state is None:
+            if f is None:
+                raise InputError("the first sample needs an accelerometer reading (the "
+                                 "initial tilt)", field="accel_m_s2")
+            self.state = new_state(quat_from_accel(f))
+            self.state["acc_rejected"] = not np.linalg.norm(f) > 0.0
+            return self.q
+        tilt_step_reference(self.state.view(np.recarray)[0], self.params, dt_s, w, f)
+        return self.q
 
     # -- batch --
     def run(self, rec: Recording) -> Estimate:
@@ -332,14 +333,17 @@ class TiltComplementaryFilter(Estimator):
                 raise InputError(f"expected shape {rec.t.shape}, got {speed.shape}",
                                  field="extra.speed_m_s")
             accel = compensate_accel(rec.t, accel, rec.gyro, speed)
-        if self.q is None:
+        if self.state is None:
             n0 = min(p.init_samples, rec.t.size)
             q0, b0, t_prev = quat_from_accel(np.mean(accel[:n0], axis=0)), np.zeros(3), math.nan
         else:  # continue from the state of an earlier run
             q0, b0 = self.q, self.bias_rad_s
             t_prev = rec.t[0] - self.first_dt(rec)
         q, bias, rej = tilt_cf_batch(rec.t, rec.gyro, accel, q0, p, b0=b0, t_prev=t_prev)
-        self.q, self.bias_rad_s, self.acc_rejected = q[-1].copy(), bias[-1].copy(), bool(rej[-1])
+        from gnomon.kernels.tilt_cf import new_state
+
+        self.state = new_state(q[-1], bias[-1])
+        self.state["acc_rejected"] = bool(rej[-1])
         self.t_last = float(rec.t[-1])
         return Estimate(t=rec.t, q=q, estimator=self.name, params=p.as_dict(),
                         frames={"reference": rec.frames.get("reference", "ENU"),
@@ -347,27 +351,32 @@ class TiltComplementaryFilter(Estimator):
                         signals={"acc_rejected": rej, "bias_rad_s": bias})
 
 
-def _tilt_step_py(q, b, w, f, dt, T, r2, rej_rel, g):
-    """One step of the 3D filter (readable reference of ``kernels.tilt_cf.tilt_cf_step``)."""
-    q = _qmul(q, _expq((w - b) * dt))
-    q = q / np.linalg.norm(q)
-    rejected = True
+def tilt_step_reference(s, params: TiltCFParams, dt_s: float, gyro_rad_s, accel_m_s2) -> None:
+    """One step of the 3D filter in place on the state record ``s`` (readable numpy twin of
+    ``gnomon.kernels.tilt_cf``: ``predict`` then ``correct_accel``; ``accel_m_s2`` None skips
+    the correction)."""
+    # gyro: q <- q ⊗ exp((ω - b) dt)
+    q = quat_mul(s.q, quat_from_rotvec((np.asarray(gyro_rad_s, float) - s.bias) * dt_s))
+    s.q[:] = q / np.linalg.norm(q)
+    s.acc_rejected = True
+    if accel_m_s2 is None:
+        return
+    f = np.asarray(accel_m_s2, float)
     nf = float(np.linalg.norm(f))
-    if nf > 0.0 and not (rej_rel > 0.0 and abs(nf - g) > rej_rel * g):
-        rejected = False
-        m = f / nf
-        qw, qx, qy, qz = q
-        u = np.array([2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx),
-                      1.0 - 2.0 * (qx * qx + qy * qy)])
-        c = np.cross(m, u)
-        s = float(np.linalg.norm(c))
-        if s > 0.0:
-            e = math.atan2(s, float(m @ u)) / s * c   # rotation vector taking m onto u
-            if r2 > 0.0:
-                b = b - r2 * dt * e
-            q = _qmul(q, _expq(dt / (T + dt) * e))
-            q = q / np.linalg.norm(q)
-    return q, b, rejected
+    g, rel = params.gravity_m_s2, params.accel_rejection_rel
+    if not nf > 0.0 or (rel > 0.0 and abs(nf - g) > rel * g):
+        return
+    s.acc_rejected = False
+    m = f / nf
+    u = dcm_from_quat(s.q)[2]  # the up direction in body: third row of R_nb
+    c = np.cross(m, u)
+    sn = float(np.linalg.norm(c))
+    if sn > 0.0:
+        e = math.atan2(sn, float(m @ u)) / sn * c  # rotation vector taking m onto u
+        if params.bias_gain_1_s2 > 0.0:
+            s.bias[:] = s.bias - params.bias_gain_1_s2 * dt_s * e
+        q = quat_mul(s.q, quat_from_rotvec(dt_s / (params.time_constant_s + dt_s) * e))
+        s.q[:] = q / np.linalg.norm(q)
 
 
 def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams, b0=None,
@@ -379,18 +388,15 @@ def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams, b0=None
     unless ``t_prev`` (s) is given: then the filter steps from ``q0``, ``b0`` (rad/s)
     at ``t_prev`` to ``t_s[0]`` (a continued run).
     """
-    from gnomon.kernels.tilt_cf import tilt_cf_run
+    from gnomon.kernels.tilt_cf import coefficients, new_state, tilt_cf_run
 
     t = np.ascontiguousarray(t_s, dtype=float)
     n = t.size
     q = np.empty((n, 4))
     b = np.empty((n, 3))
     rej = np.zeros(n, dtype=np.bool_)
+    state = new_state(q0, np.zeros(3) if b0 is None else b0)
     tilt_cf_run(t, np.ascontiguousarray(gyro_rad_s, dtype=float),
-                np.ascontiguousarray(accel_m_s2, dtype=float),
-                np.ascontiguousarray(q0, dtype=float),
-                np.zeros(3) if b0 is None else np.ascontiguousarray(b0, dtype=float),
-                float(t_prev), float(params.time_constant_s),
-                float(params.bias_gain_1_s2), float(params.accel_rejection_rel),
-                float(params.gravity_m_s2), q, b, rej)
+                np.ascontiguousarray(accel_m_s2, dtype=float), state, coefficients(params),
+                float(t_prev), q, b, rej)
     return q, b, rej

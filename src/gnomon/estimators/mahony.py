@@ -19,8 +19,8 @@ estimate. In gnomon's form the two proportional gains are separate,
 
     ω = ω_y - b + k_a e_acc + k_m e_mag,   ḃ = -k_I (e_acc + e_mag),
 
-with ``kp_acc_rad_s``, ``kp_mag_rad_s`` (rad/s per unit error) and ``ki_per_s``
-(rad/s² per unit error).
+with ``kp_acc_rad_s``, ``kp_mag_rad_s`` (rad/s per unit error) and ``ki_rad_s2``
+(rad/s² per unit error; formerly named ``ki_per_s``).
 
 Samples with a zero-norm accelerometer or magnetometer vector skip that
 correction and are flagged (``acc_skipped``, ``mag_skipped``). Intervals longer
@@ -36,6 +36,7 @@ kernel ``gnomon.kernels.mahony`` which the tests compare to it sample by sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -43,16 +44,18 @@ from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.estimators.initial import attitude_from_acc_mag, initial_attitude
 from gnomon.recording import Recording
-from gnomon.rotation import quat_from_rotvec, quat_mul, quat_rotate
+from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 
 __all__ = ["MahonyParams", "Mahony", "run_batch"]
 
 
 @dataclass(frozen=True)
 class MahonyParams(Params):
+    renamed: ClassVar[dict[str, str]] = {"ki_per_s": "ki_rad_s2"}
+
     kp_acc_rad_s: float = param(0.6, "rad/s", "proportional gain of the accelerometer correction")
     kp_mag_rad_s: float = param(0.3, "rad/s", "proportional gain of the magnetometer correction")
-    ki_per_s: float = param(0.005, "rad/s^2", "integral gain (gyro bias estimation)")
+    ki_rad_s2: float = param(0.005, "rad/s^2", "integral gain (gyro bias estimation)")
     mag_heading_only: bool = param(True, "", "magnetometer corrects heading only (not tilt)")
     init_samples: int = param(1, "samples", "samples averaged for the initial attitude")
     max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro propagation only")
@@ -60,69 +63,115 @@ class MahonyParams(Params):
     def validate(self):
         self._require("kp_acc_rad_s", self.kp_acc_rad_s >= 0, "must be >= 0")
         self._require("kp_mag_rad_s", self.kp_mag_rad_s >= 0, "must be >= 0")
-        self._require("ki_per_s", self.ki_per_s >= 0, "must be >= 0")
+        self._require("ki_rad_s2", self.ki_rad_s2 >= 0, "must be >= 0")
         self._require("init_samples", self.init_samples >= 1, "must be >= 1")
         self._require("max_dt_s", self.max_dt_s > 0, "must be > 0")
 
 
 def _unit(v):
+    if v is None:
+        return None, False
+    v = np.asarray(v, float)
     n = float(np.sqrt(v @ v))
     return (v / n, True) if n > 0.0 and np.isfinite(n) else (v, False)
 
 
 class Mahony(Estimator):
-    """Explicit complementary filter (Mahony et al. 2008), 9-axis, ENU; estimate ``q_nb``."""
+    """Explicit complementary filter (Mahony et al. 2008), 9-axis, ENU; estimate ``q_nb``.
+
+    State: ``state``, a one-element ``gnomon.kernels.mahony.STATE`` array (``q``, ``bias``;
+    None until the first accelerometer/magnetometer pair initialises the attitude)."""
 
     name = "mahony"
     summary = "Explicit complementary filter (Mahony 2008), gyro+acc+mag, PI bias estimation"
+    paper = "Mahony et al. 2008"
+    kind = "imu"
+    reference_frame = "ENU"
     Params = MahonyParams
     needs = ("gyro", "accel", "mag")
-    state_fields = ("q", "bias", "t_last")
+    state_fields = ("state", "t_last")
 
     def reset(self) -> None:
-        self.q = None  # q_nb, set from the first accelerometer/magnetometer sample
-        self.bias = np.zeros(3)  # rad/s
+        self.state = None  # kernels.mahony.STATE (1,), set from the first acc/mag sample
         self.t_last = None  # s, time of the last sample processed by ``run``
+
+    @property
+    def q(self) -> np.ndarray | None:
+        """Current ``q_nb`` (4,), ENU from body (None before initialisation)."""
+        return None if self.state is None else self.state["q"][0].copy()
+
+    @q.setter
+    def q(self, q_nb) -> None:
+        from gnomon.kernels.mahony import new_state
+
+        self.state = new_state(q_nb, self.bias)
+
+    @property
+    def bias(self) -> np.ndarray:
+        """Current gyro-bias estimate (3,) rad/s."""
+        return np.zeros(3) if self.state is None else self.state["bias"][0].copy()
 
     def initialise(self, acc, mag) -> None:
         """Set ``q`` from accelerometer and magnetometer samples (N, 3) (or (3,))."""
         self.q = initial_attitude(np.atleast_2d(acc), np.atleast_2d(mag),
                                   self.params.init_samples)
 
-    def update(self, dt_s: float, gyro, acc, mag) -> np.ndarray:
-        """One sample: ``gyro`` rad/s, ``acc``/``mag`` any unit (body). Returns ``q_nb`` (4,)."""
+    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, mag_uT=None) -> np.ndarray:
+        """One sample (body frame): gyro rad/s, accelerometer and magnetometer in any unit
+        (only their directions are used; None: no new sample of that sensor). Returns
+        ``q_nb`` (4,). The first call initialises the attitude from ``accel_m_s2``,
+        ``mag_uT`` (both needed)."""
         p = self.params
-        if self.q is None:
-            self.initialise(acc, mag)
-        gyro = np.asarray(gyro, float)
+        if self.state is None:
+            if accel_m_s2 is None or mag_uT is None:
+                raise InputError("the first sample needs accelerometer and magnetometer "
+                                 "readings (the initial attitude)", field="accel_m_s2, mag_uT")
+            self.initialise(accel_m_s2, mag_uT)
+        s = self.state.view(np.recarray)[0]
+        gyro = np.asarray(gyro_rad_s, float)
         self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
         if dt_s <= 0.0:
             return self.q
         # prediction with the gyro over (t[k-1], t[k]], then correction with the vectors at t[k]
-        self.q = quat_mul(self.q, quat_from_rotvec((gyro - self.bias) * dt_s))
+        q = quat_mul(s.q, quat_from_rotvec((gyro - s.bias) * dt_s))
         if dt_s > p.max_dt_s:
             self.flags["gap"] = True
-            self.q = self.q / np.linalg.norm(self.q)
+            s.q[:] = q / np.linalg.norm(q)
             return self.q
-        a, ok_a = _unit(np.asarray(acc, float))
-        m, ok_m = _unit(np.asarray(mag, float))
-        q_bn = self.q * np.array([1.0, -1.0, -1.0, -1.0])
-        v_up = quat_rotate(q_bn, np.array([0.0, 0.0, 1.0]))
-        e_acc = np.cross(a, v_up) if ok_a else np.zeros(3)
-        e_mag = np.zeros(3)
-        if ok_m:
-            h = quat_rotate(self.q, m)
-            ref = np.array([0.0, np.hypot(h[0], h[1]), h[2]])
-            e_mag = np.cross(m, quat_rotate(q_bn, ref))
-            if p.mag_heading_only:
-                e_mag = (e_mag @ v_up) * v_up
+        e_acc, ok_a = self._accel_error(q, accel_m_s2)
+        e_mag, ok_m = self._mag_error(q, mag_uT)
         self.flags["acc_skipped"] = not ok_a
         self.flags["mag_skipped"] = not ok_m
-        self.bias = self.bias - p.ki_per_s * (e_acc + e_mag) * dt_s
+        s.bias[:] = s.bias - p.ki_rad_s2 * (e_acc + e_mag) * dt_s
         correction = p.kp_acc_rad_s * e_acc + p.kp_mag_rad_s * e_mag
-        self.q = quat_mul(self.q, quat_from_rotvec(correction * dt_s))
-        self.q = self.q / np.linalg.norm(self.q)
+        q = quat_mul(q, quat_from_rotvec(correction * dt_s))
+        s.q[:] = q / np.linalg.norm(q)
         return self.q
+
+    @staticmethod
+    def _accel_error(q_nb, accel):
+        """``e_acc = a/|a| × R_nbᵀ up`` (body) and whether the sample was used."""
+        a, ok = _unit(accel)
+        if not ok:
+            return np.zeros(3), False
+        v_up = quat_rotate(quat_conj(q_nb), np.array([0.0, 0.0, 1.0]))
+        return np.cross(a, v_up), True
+
+    def _mag_error(self, q_nb, mag):
+        """``e_mag = m/|m| × R_nbᵀ ref``, ``ref = [0, |h_xy|, h_z]`` with ``h = R_nb m``
+        (Madgwick's reference from the estimate), only its vertical part when
+        ``mag_heading_only``; and whether the sample was used."""
+        m, ok = _unit(mag)
+        if not ok:
+            return np.zeros(3), False
+        q_bn = quat_conj(q_nb)
+        h = quat_rotate(q_nb, m)
+        ref = np.array([0.0, np.hypot(h[0], h[1]), h[2]])
+        e_mag = np.cross(m, quat_rotate(q_bn, ref))
+        if self.params.mag_heading_only:
+            v_up = quat_rotate(q_bn, np.array([0.0, 0.0, 1.0]))
+            e_mag = (e_mag @ v_up) * v_up
+        return e_mag, True
 
     @classmethod
     def run_many(cls, recs, params=None):
@@ -145,11 +194,11 @@ class Mahony(Estimator):
 
     def run(self, rec: Recording) -> Estimate:
         """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
-        from gnomon.kernels.mahony import mahony_batch
+        from gnomon.kernels.mahony import coefficients, mahony_batch
 
         self.check_inputs(rec)
         p = self.params
-        if self.q is None:
+        if self.state is None:
             self.initialise(rec.accel, rec.mag)
         n = len(rec)
         dt = np.empty(n)
@@ -158,13 +207,10 @@ class Mahony(Estimator):
         q_out = np.empty((n, 4))
         b_out = np.empty((n, 3))
         flags = np.empty(n, np.uint8)
-        state_q = np.array(self.q, float)
-        state_b = np.array(self.bias, float)
         mahony_batch(dt, np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
-                     np.ascontiguousarray(rec.mag), state_q, state_b, p.kp_acc_rad_s,
-                     p.kp_mag_rad_s, p.ki_per_s, p.mag_heading_only, p.max_dt_s, q_out, b_out,
+                     np.ascontiguousarray(rec.mag), self.state, coefficients(p), q_out, b_out,
                      flags)
-        self.q, self.bias, self.t_last = state_q, state_b, float(rec.t[-1])
+        self.t_last = float(rec.t[-1])
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
             frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
@@ -185,7 +231,7 @@ def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None,
     ``out``: an earlier result of the same shape to write into (no new memory: a loop
     over chunks of runs reuses one buffer; fresh memory costs its page faults).
     """
-    from gnomon.kernels.mahony import mahony_batch_runs
+    from gnomon.kernels.mahony import coefficients, mahony_batch_runs
 
     p = params or MahonyParams()
     t = np.asarray(t, dtype=float)
@@ -214,8 +260,7 @@ def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None,
             raise InputError(f"expected an earlier result of shape ({r}, {t.size}, 4) "
                              f"(float64, run-minor memory), got {given.shape} "
                              f"{given.dtype}", field="out")
-    mahony_batch_runs(dt, g, a, m, q, b, p.kp_acc_rad_s, p.kp_mag_rad_s, p.ki_per_s,
-                      p.mag_heading_only, p.max_dt_s, out)
+    mahony_batch_runs(dt, g, a, m, q, b, coefficients(p), out)
     return out.transpose(2, 0, 1)
 
 

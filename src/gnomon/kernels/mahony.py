@@ -1,8 +1,10 @@
 """Compiled loops of the 9-axis explicit complementary filter.
 
 Twin of ``gnomon.estimators.mahony.Mahony.update`` (tested sample by sample).
-One step is written once, in ``_core``, on scalars; the single-stream loop and
-the batch-over-runs loop both call it. The batch loop runs the step for all
+The shape of ``gnomon.kernels``: ``Coefficients`` (the gains), ``STATE`` (``q``,
+``bias``), and one step written once, in ``_core``, on scalars, from its phases
+(gyro prediction, ``_accel_error``, ``_mag_error``, the PI correction); the
+single-stream loop and the batch-over-runs loop both call it. The batch loop runs the step for all
 runs in a branch-light form that LLVM vectorises (the rotation exponential by
 its Taylor series only) and then redoes, with the exact forms, the few runs
 whose step needed them (a rotation of more than 0.05 rad) — so every run
@@ -12,6 +14,7 @@ equals its single-stream result.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -23,12 +26,81 @@ from gnomon.kernels.quat import exp_mul as _exp_mul
 # move by rounding only, ~1e-15; the tests hold the kernels to 1e-12 of the reference).
 _FAST = {"contract", "arcp", "reassoc", "nsz"}
 
+#: The single-stream state: ``q`` (4,) ``q_nb`` (ENU from body), ``bias`` (3,) rad/s.
+STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,))])
+
+
+class Coefficients(NamedTuple):
+    """The filter's gains in kernel form (see ``MahonyParams``)."""
+
+    kp_acc_rad_s: float
+    kp_mag_rad_s: float
+    ki_rad_s2: float
+    heading_only: bool
+    max_dt_s: float
+
+
+def coefficients(params) -> Coefficients:
+    """``Coefficients`` of a ``MahonyParams``."""
+    return Coefficients(float(params.kp_acc_rad_s), float(params.kp_mag_rad_s),
+                        float(params.ki_rad_s2), bool(params.mag_heading_only),
+                        float(params.max_dt_s))
+
+
+def new_state(q0, bias0=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """A state (one-element ``STATE`` array) at ``q0`` (4,) and bias (3,) rad/s."""
+    s = np.zeros(1, STATE)
+    s["q"][0] = q0
+    s["bias"][0] = bias0
+    return s
+
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
-def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
-          kp_acc, kp_mag, ki, heading_only, trig):
-    """One corrected step (0 < dt <= max_dt) on scalars.
+def _accel_error(ux, uy, uz, ax, ay, az):
+    """Accelerometer phase: ``e_acc = a/|a| × up_b`` (body; ``up_b`` the third row of
+    ``R_nb``). Returns ``(ex, ey, ez, skipped)``; a zero vector gives a zero error."""
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    ia = 1.0 / na if na > 0.0 else 0.0
+    ax *= ia
+    ay *= ia
+    az *= ia
+    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, na == 0.0
 
+
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
+def _mag_error(c00, c01, c02, c10, c11, c12, ux, uy, uz, mx, my, mz, heading_only):
+    """Magnetometer phase: ``e_mag = m/|m| × R_nbᵀ ref`` with ``ref = [0, |h_xy|, h_z]``,
+    ``h = R_nb m`` (rows ``c0*``, ``c1*`` and up ``u`` of ``R_nb``). Returns
+    ``(fx, fy, fz, skipped)``.
+
+    ``m × R_nbᵀ ref`` equals ``R_nbᵀ (h × ref)``, ``h × ref = [hz (hy - rn), -hx hz, hx rn]``
+    (``rn = |h_xy|``): its vertical part ``hx·rn`` is the heading error, all that
+    ``heading_only`` keeps (along up)."""
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    im = 1.0 / nm if nm > 0.0 else 0.0
+    mx *= im
+    my *= im
+    mz *= im
+    hx = c00 * mx + c01 * my + c02 * mz
+    hy = c10 * mx + c11 * my + c12 * mz
+    rn = math.sqrt(hx * hx + hy * hy)
+    if heading_only:
+        d = hx * rn
+        return d * ux, d * uy, d * uz, nm == 0.0
+    hz = ux * mx + uy * my + uz * mz
+    n0 = hz * (hy - rn)
+    n1 = -hx * hz
+    n2 = hx * rn
+    return (c00 * n0 + c10 * n1 + ux * n2, c01 * n0 + c11 * n1 + uy * n2,
+            c02 * n0 + c12 * n1 + uz * n2, nm == 0.0)
+
+
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
+def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz, c, trig):
+    """One corrected step (0 < dt <= max_dt) on scalars, coefficients ``c``.
+
+    Gyro prediction, the two vector errors, then the PI correction
+    ``ḃ = -k_I (e_acc + e_mag)``, ``q ← q ⊗ exp((k_a e_acc + k_m e_mag) dt)``.
     Returns ``(w, x, y, z, b0, b1, b2, flags, redo)``: flags bit 1 accelerometer skipped,
     bit 2 magnetometer skipped; ``redo``: with ``trig`` False, the step needed the exact
     forms (a rotation of >= 0.05 rad, see ``gnomon.kernels.quat.exp_mul``).
@@ -36,79 +108,50 @@ def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
     w, x, y, z, redo1 = _exp_mul(w, x, y, z, (gx - b0) * dt, (gy - b1) * dt, (gz - b2) * dt,
                                 trig, False)
     c00, c01, c02, c10, c11, c12, ux, uy, uz = _dcm(w, x, y, z)
-    # (ux, uy, uz): the up direction in body, R_nbᵀ [0, 0, 1] (third row of R_nb)
-    na = math.sqrt(ax * ax + ay * ay + az * az)
-    ia = 1.0 / na if na > 0.0 else 0.0  # a zero vector gives a zero correction
-    ax *= ia
-    ay *= ia
-    az *= ia
-    ex = ay * uz - az * uy
-    ey = az * ux - ax * uz
-    ez = ax * uy - ay * ux
-    nm = math.sqrt(mx * mx + my * my + mz * mz)
-    im = 1.0 / nm if nm > 0.0 else 0.0
-    mx *= im
-    my *= im
-    mz *= im
-    # h = R_nb m and the reference ref = [0, rn, hz], rn = |h_xy|. The reference's error
-    # m × R_nbᵀ ref equals R_nbᵀ (h × ref), h × ref = [hz (hy - rn), -hx hz, hx rn]: its
-    # vertical part hx·rn is the heading error (all that heading_only keeps, along up).
-    hx = c00 * mx + c01 * my + c02 * mz
-    hy = c10 * mx + c11 * my + c12 * mz
-    rn = math.sqrt(hx * hx + hy * hy)
-    if heading_only:
-        d = hx * rn
-        fx = d * ux
-        fy = d * uy
-        fz = d * uz
-    else:
-        hz = ux * mx + uy * my + uz * mz
-        n0 = hz * (hy - rn)
-        n1 = -hx * hz
-        n2 = hx * rn
-        fx = c00 * n0 + c10 * n1 + ux * n2
-        fy = c01 * n0 + c11 * n1 + uy * n2
-        fz = c02 * n0 + c12 * n1 + uz * n2
+    ex, ey, ez, skip_a = _accel_error(ux, uy, uz, ax, ay, az)
+    fx, fy, fz, skip_m = _mag_error(c00, c01, c02, c10, c11, c12, ux, uy, uz, mx, my, mz,
+                                    c.heading_only)
+    ki = c.ki_rad_s2
     b0 -= ki * (ex + fx) * dt
     b1 -= ki * (ey + fy) * dt
     b2 -= ki * (ez + fz) * dt
-    w, x, y, z, redo2 = _exp_mul(w, x, y, z, (kp_acc * ex + kp_mag * fx) * dt,
-                                (kp_acc * ey + kp_mag * fy) * dt,
-                                (kp_acc * ez + kp_mag * fz) * dt, trig, True)
-    flags = (1 if na == 0.0 else 0) | (2 if nm == 0.0 else 0)
+    ka, km = c.kp_acc_rad_s, c.kp_mag_rad_s
+    w, x, y, z, redo2 = _exp_mul(w, x, y, z, (ka * ex + km * fx) * dt, (ka * ey + km * fy) * dt,
+                                (ka * ez + km * fz) * dt, trig, True)
+    flags = (1 if skip_a else 0) | (2 if skip_m else 0)
     return w, x, y, z, b0, b1, b2, flags, redo1 or redo2
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def mahony_step(q, b, dt, gx, gy, gz, ax, ay, az, mx, my, mz,
-                kp_acc, kp_mag, ki, heading_only, max_dt):
-    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias.
+def mahony_step(q, b, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,) bias, coefficients ``c``.
 
     Returns flags as bits: 1 accelerometer skipped, 2 magnetometer skipped, 4 gap.
     """
     if dt <= 0.0:
         return 0
-    if dt > max_dt:  # gap: gyro propagation only
+    if dt > c.max_dt_s:  # gap: gyro propagation only
         q[0], q[1], q[2], q[3], _ = _exp_mul(q[0], q[1], q[2], q[3], (gx - b[0]) * dt,
                                              (gy - b[1]) * dt, (gz - b[2]) * dt, True, True)
         return 4
     q[0], q[1], q[2], q[3], b[0], b[1], b[2], flags, _ = _core(
         q[0], q[1], q[2], q[3], b[0], b[1], b[2], dt, gx, gy, gz, ax, ay, az, mx, my, mz,
-        kp_acc, kp_mag, ki, heading_only, True)
+        c, True)
     return flags
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
-                 q_out, b_out, flags):
+def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
     """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
 
-    ``q`` (4,) and ``b`` (3,) are the state, updated in place; outputs ``q_out`` (N, 4),
+    ``state`` (one-element ``STATE`` array) is updated in place; outputs ``q_out`` (N, 4),
     ``b_out`` (N, 3) and ``flags`` (N,) uint8 with the bits of ``mahony_step``. The state
     stays in registers over the loop (same arithmetic as ``mahony_step``).
     """
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    b0, b1, b2 = b[0], b[1], b[2]
+    s = state[0]
+    w, x, y, z = s.q[0], s.q[1], s.q[2], s.q[3]
+    b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
+    max_dt = c.max_dt_s
     for i in range(dt.shape[0]):
         h = dt[i]
         f = 0
@@ -119,8 +162,7 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
         elif h > 0.0:
             w, x, y, z, b0, b1, b2, f, _ = _core(
                 w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
-                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], kp_acc, kp_mag, ki,
-                heading_only, True)
+                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], c, True)
         flags[i] = f
         q_out[i, 0] = w
         q_out[i, 1] = x
@@ -129,31 +171,32 @@ def mahony_batch(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max
         b_out[i, 0] = b0
         b_out[i, 1] = b1
         b_out[i, 2] = b2
-    q[0], q[1], q[2], q[3] = w, x, y, z
-    b[0], b[1], b[2] = b0, b1, b2
+    s.q[0], s.q[1], s.q[2], s.q[3] = w, x, y, z
+    s.bias[0], s.bias[1], s.bias[2] = b0, b1, b2
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
-def _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki, heading_only, max_dt):
+def _run_step(one, bias, c, h, gyro, acc, mag, i, r):
     """``mahony_step`` on ``one``, ``bias`` with sample ``i`` of run ``r`` (inputs (N, 3, R))."""
-    mahony_step(one, bias, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
-                acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r], kp_acc,
-                kp_mag, ki, heading_only, max_dt)
+    mahony_step(one, bias, c, h, gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
+                acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r])
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
-def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only, max_dt,
-                      q_out):
+def mahony_batch_runs(dt, gyro, acc, mag, q, b, c, q_out):
     """R independent filters over N samples, run-minor layout for SIMD over runs.
 
     ``dt`` (N,) s shared by the runs; ``gyro``, ``acc``, ``mag`` (N, 3, R); state ``q`` (4, R),
-    ``b`` (3, R) updated in place; ``q_out`` (N, 4, R). Every run follows the arithmetic
+    ``b`` (3, R) updated in place (run-minor arrays rather than R ``STATE`` records: the
+    layout that lets LLVM vectorise over runs); coefficients ``c`` shared; ``q_out``
+    (N, 4, R). Every run follows the arithmetic
     of ``mahony_step`` (flags are not recorded here). The vector loop turns ``q`` in place
     and writes the new bias aside; a step to redo starts again from ``q_out[i - 1]``:
     no copy of the state before each step, and no scan for redos when it counted none.
     """
     n = dt.shape[0]
     r_count = q.shape[1]
+    max_dt = c.max_dt_s
     q_first = q.copy()  # the state before the first step (later: q_out[i - 1])
     b_next = np.empty((3, r_count))
     redo = np.zeros(r_count, np.bool_)
@@ -169,15 +212,14 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
                     q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], h,
                     gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
                     acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r],
-                    kp_acc, kp_mag, ki, heading_only, False)
+                    c, False)
                 redo[r] = red
                 n_redo += red
             for r in range(r_count if n_redo else 0):  # the rare exact steps, again
                 if redo[r]:
                     one[:] = q_first[:, r] if i == 0 else q_out[i - 1, :, r]
                     bias[:] = b[:, r]
-                    _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki,
-                              heading_only, max_dt)
+                    _run_step(one, bias, c, h, gyro, acc, mag, i, r)
                     q[:, r] = one
                     b_next[:, r] = bias
             b[:, :] = b_next
@@ -185,7 +227,6 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, kp_acc, kp_mag, ki, heading_only
             for r in range(r_count):
                 one[:] = q[:, r]
                 bias[:] = b[:, r]
-                _run_step(one, bias, h, gyro, acc, mag, i, r, kp_acc, kp_mag, ki,
-                          heading_only, max_dt)
+                _run_step(one, bias, c, h, gyro, acc, mag, i, r)
                 q[:, r] = one
         q_out[i, :, :] = q

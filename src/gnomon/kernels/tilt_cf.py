@@ -1,88 +1,126 @@
-"""Compiled batch loop of the 3D tilt complementary filter (``gnomon.estimators.complementary``).
+"""Compiled loop of the 3D tilt complementary filter of seed 004 (``tilt-cf``).
 
-Readable twin: ``gnomon.estimators.complementary._tilt_step_py`` (tested sample by sample).
+Readable twin: ``gnomon.estimators.complementary.TiltComplementaryFilter.update``
+(through ``tilt_step_reference``), tested sample by sample. The filter's shape
+follows ``gnomon.kernels`` (Coefficients NamedTuple, State record, phases):
+
+* ``Coefficients``: ``time_constant_s`` (T), ``bias_gain_1_s2`` (r₂),
+  ``accel_rejection_rel``, ``gravity_m_s2``;
+* ``STATE``: ``q`` (4,) ``q_nb`` (ENU from body), ``bias`` (3,) rad/s,
+  ``acc_rejected`` (the last sample's accelerometer was not used);
+* phases: ``predict`` (gyro), ``correct_accel`` (the fraction ``dt/(T + dt)`` of the
+  rotation taking the measured up direction onto the predicted one, and the bias
+  integral).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
+from gnomon.kernels.linalg import cross
+from gnomon.kernels.quat import exp_mul
 
-@njit(cache=True)
-def _expq(rx, ry, rz):
-    th = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if th < 1e-4:
-        th2 = th * th
-        k = 0.5 - th2 / 48.0 + th2 * th2 / 3840.0
-    else:
-        k = math.sin(0.5 * th) / th
-    return math.cos(0.5 * th), k * rx, k * ry, k * rz
+STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,)), ("acc_rejected", "?")])
 
 
-@njit(cache=True)
-def _qmul(pw, px, py, pz, qw, qx, qy, qz):
-    return (pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw)
+class Coefficients(NamedTuple):
+    """The filter's tuning in kernel form (see ``TiltCFParams``)."""
+
+    time_constant_s: float
+    bias_gain_1_s2: float
+    accel_rejection_rel: float
+    gravity_m_s2: float
 
 
-@njit(cache=True)
-def tilt_cf_step(q, b, dt, gx, gy, gz, ax, ay, az, T, r2, rej_rel, g):
-    """One sample in place on ``q`` (4,) ``q_nb`` and ``b`` (3,); returns True if rejected."""
-    dw, dx, dy, dz = _expq((gx - b[0]) * dt, (gy - b[1]) * dt, (gz - b[2]) * dt)
-    w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    rejected = True
+def coefficients(params) -> Coefficients:
+    """``Coefficients`` of a ``TiltCFParams``."""
+    return Coefficients(float(params.time_constant_s), float(params.bias_gain_1_s2),
+                        float(params.accel_rejection_rel), float(params.gravity_m_s2))
+
+
+def new_state(q0, bias0=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """A state (one-element ``STATE`` array) at attitude ``q0`` (4,) and bias (3,) rad/s."""
+    s = np.zeros(1, STATE)
+    s["q"][0] = q0
+    s["bias"][0] = bias0
+    return s
+
+
+@njit(inline="always", error_model="numpy")
+def predict(s, dt, gx, gy, gz):
+    """Gyro phase: ``q ← normalise(q ⊗ exp((ω − b̂) dt))``."""
+    q = s.q
+    q[0], q[1], q[2], q[3], _ = exp_mul(q[0], q[1], q[2], q[3], (gx - s.bias[0]) * dt,
+                                        (gy - s.bias[1]) * dt, (gz - s.bias[2]) * dt, True, True)
+
+
+@njit(inline="always", error_model="numpy")
+def correct_accel(s, c, dt, ax, ay, az):
+    """Accelerometer phase. Rotation vector ``e`` (body) taking the measured up direction
+    ``a/|a|`` onto the predicted ``R_nbᵀ e_z``; ``q ← q ⊗ exp(dt/(T + dt) e)``,
+    ``b̂ ← b̂ − r₂ dt e``. Skipped (``acc_rejected``) for a zero vector or when
+    ``||a| − g| > accel_rejection_rel · g``."""
+    s.acc_rejected = True
     nf = math.sqrt(ax * ax + ay * ay + az * az)
-    if nf > 0.0 and not (rej_rel > 0.0 and abs(nf - g) > rej_rel * g):
-        rejected = False
-        mx, my, mz = ax / nf, ay / nf, az / nf
-        ux = 2.0 * (x * z - w * y)
-        uy = 2.0 * (y * z + w * x)
-        uz = 1.0 - 2.0 * (x * x + y * y)
-        cx = my * uz - mz * uy
-        cy = mz * ux - mx * uz
-        cz = mx * uy - my * ux
-        s = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if s > 0.0:
-            k = math.atan2(s, mx * ux + my * uy + mz * uz) / s
-            ex, ey, ez = k * cx, k * cy, k * cz
-            if r2 > 0.0:
-                b[0] -= r2 * dt * ex
-                b[1] -= r2 * dt * ey
-                b[2] -= r2 * dt * ez
-            f = dt / (T + dt)
-            dw, dx, dy, dz = _expq(f * ex, f * ey, f * ez)
-            w, x, y, z = _qmul(w, x, y, z, dw, dx, dy, dz)
-            n = math.sqrt(w * w + x * x + y * y + z * z)
-            w, x, y, z = w / n, x / n, y / n, z / n
-    q[0], q[1], q[2], q[3] = w, x, y, z
-    return rejected
+    g = c.gravity_m_s2
+    if not nf > 0.0 or (c.accel_rejection_rel > 0.0
+                        and abs(nf - g) > c.accel_rejection_rel * g):
+        return
+    s.acc_rejected = False
+    mx, my, mz = ax / nf, ay / nf, az / nf
+    q = s.q
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    ux = 2.0 * (x * z - w * y)  # up in body: third row of R_nb
+    uy = 2.0 * (y * z + w * x)
+    uz = 1.0 - 2.0 * (x * x + y * y)
+    cx, cy, cz = cross(mx, my, mz, ux, uy, uz)
+    sn = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if sn > 0.0:
+        k = math.atan2(sn, mx * ux + my * uy + mz * uz) / sn
+        ex, ey, ez = k * cx, k * cy, k * cz
+        r2 = c.bias_gain_1_s2
+        if r2 > 0.0:
+            s.bias[0] -= r2 * dt * ex
+            s.bias[1] -= r2 * dt * ey
+            s.bias[2] -= r2 * dt * ez
+        f = dt / (c.time_constant_s + dt)
+        q[0], q[1], q[2], q[3], _ = exp_mul(w, x, y, z, f * ex, f * ey, f * ez, True, True)
 
 
-@njit(cache=True)
-def tilt_cf_run(t, gyro, accel, q0, b0, t_prev, T, r2, rej_rel, g, q_out, b_out, rej_out):
-    """Whole recording: ``q_out`` (N, 4), ``b_out`` (N, 3), ``rej_out`` (N,) filled in place.
+@njit(cache=True, error_model="numpy")
+def tilt_cf_step(state, c, dt, gx, gy, gz, ax, ay, az):
+    """One sample in place on ``state`` (one-element ``STATE`` array); returns
+    ``acc_rejected``."""
+    s = state[0]
+    predict(s, dt, gx, gy, gz)
+    correct_accel(s, c, dt, ax, ay, az)
+    return s.acc_rejected
 
-    A fresh filter (``t_prev`` NaN) outputs ``q0`` at sample 0; a continued one
-    (``t_prev`` the time of its last sample) steps from ``q0``, ``b0`` to ``t[0]`` first.
+
+@njit(cache=True, error_model="numpy")
+def tilt_cf_run(t, gyro, accel, state, c, t_prev, q_out, b_out, rej_out):
+    """Whole recording: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3) m/s² from
+    ``state`` (updated in place); ``q_out`` (N, 4), ``b_out`` (N, 3), ``rej_out`` (N,).
+
+    A fresh filter (``t_prev`` NaN) outputs its initial state at sample 0; a continued
+    one (``t_prev`` the time of its last sample) steps from its state to ``t[0]`` first.
     """
-    n = t.shape[0]
-    q = q0.copy()
-    b = b0.copy()
+    s = state[0]
     start = 0
     if math.isnan(t_prev):
-        q_out[0, :] = q
-        b_out[0, :] = b
+        q_out[0, :] = s.q
+        b_out[0, :] = s.bias
         rej_out[0] = not (accel[0, 0] ** 2 + accel[0, 1] ** 2 + accel[0, 2] ** 2 > 0.0)
+        s.acc_rejected = rej_out[0]
         start = 1
-    for k in range(start, n):
+    for k in range(start, t.shape[0]):
         dt = t[k] - (t[k - 1] if k > 0 else t_prev)
-        rej_out[k] = tilt_cf_step(q, b, dt, gyro[k, 0], gyro[k, 1], gyro[k, 2],
-                                  accel[k, 0], accel[k, 1], accel[k, 2], T, r2, rej_rel, g)
-        q_out[k, :] = q
-        b_out[k, :] = b
+        predict(s, dt, gyro[k, 0], gyro[k, 1], gyro[k, 2])
+        correct_accel(s, c, dt, accel[k, 0], accel[k, 1], accel[k, 2])
+        rej_out[k] = s.acc_rejected
+        q_out[k, :] = s.q
+        b_out[k, :] = s.bias
