@@ -178,3 +178,28 @@ def test_bench_json_contract(capsys):
         assert out["results"]["vqf-batch"]["ratio_to_vqf_batch"] == pytest.approx(1.0)
     for r in out["results"].values():
         assert r["samples_per_s"] > 0 and "ratio_to_vqf_batch" in r
+
+
+def test_bad_column_map_is_one_line_not_a_traceback(capsys):
+    csv = DATA / "broad_01_excerpt.csv"
+    assert main(["estimate", csv, "--columns", "tt"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "gnomon: error: field '--columns': expected KEY=VALUE, got 'tt'"
+    assert main(["estimate", csv, "--columns", "t=tt"]) == 2
+    assert "field 'tt': missing column" in capsys.readouterr().err
+
+
+def test_a_filter_refuses_a_recording_in_another_reference_frame(capsys):
+    from gnomon.io import read
+
+    rec = read(EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat")
+    from dataclasses import replace
+
+    ned = replace(rec, frames={"reference": "NED", "body": "sensor"})
+    from gnomon.errors import InputError
+    from gnomon.estimators import registry
+
+    for name in registry.names("imu"):
+        with pytest.raises(InputError, match="estimates against ENU") as err:
+            registry.create(name).run(ned)
+        assert err.value.field == "frames.reference"

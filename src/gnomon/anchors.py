@@ -60,16 +60,6 @@ def run_vqf(rec: Recording) -> np.ndarray:
     return np.asarray(vqf.VQF(1.0 / rec.sample_rate_hz).updateBatch(gyr, acc, mag)["quat9D"])
 
 
-def run_basicvqf(rec: Recording) -> np.ndarray:
-    """BasicVQF (the simpler VQF variant), ``BasicVQF(Ts).updateBatch(...)['quat9D']``."""
-    import vqf
-
-    _require_enu(rec)
-    gyr, acc, mag = _arrays(rec)
-    return np.asarray(
-        vqf.BasicVQF(1.0 / rec.sample_rate_hz).updateBatch(gyr, acc, mag)["quat9D"])
-
-
 def run_imufusion(rec: Recording) -> np.ndarray:
     """imufusion ``Ahrs`` with default settings but the sample rate, one ``update`` per sample."""
     import imufusion

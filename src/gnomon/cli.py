@@ -8,7 +8,6 @@ naming the file, field and row, and exit status 2 — never a traceback.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import sys
@@ -16,8 +15,6 @@ from pathlib import Path
 
 from gnomon import __version__
 from gnomon.errors import InputError
-
-PAPERS = ("000", "001", "002", "003", "004")
 
 
 def _json_default(o):
@@ -64,14 +61,10 @@ def _params(pairs: list[str], option: str = "--param", typed: bool = False) -> d
 
 # ------------------------------------------------------------------ commands
 def cmd_filters(args) -> int:
-    """``gnomon.estimators.registry``: names, parameters, defaults, units."""
+    """``gnomon.describe_filters()``: names, parameters, defaults, units."""
     from gnomon.estimators import registry
 
-    table = []
-    for name in registry.names():
-        cls = registry.get(name)
-        table.append({"name": name, "summary": cls.summary, "needs": list(cls.needs),
-                      "params": cls.Params.describe()})
+    table = registry.describe()
     if args.json:
         print_json(table)
         return 0
@@ -88,7 +81,7 @@ def _read_input(args):
 
     csv_opts = {}
     if args.columns:
-        csv_opts["columns"] = dict(kv.split("=", 1) for kv in args.columns.split(","))
+        csv_opts["columns"] = _params(args.columns.split(","), option="--columns")
     for opt in ("gyro_unit", "accel_unit", "mag_unit", "time_unit"):
         if getattr(args, opt):
             csv_opts[opt] = getattr(args, opt)
@@ -347,8 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_campaign)
 
-    available = [n for n in PAPERS
-                 if importlib.util.find_spec(f"gnomon.reproduce.p{n}") is not None]
+    from gnomon.reproduce import available as available_papers
+
+    available = available_papers()
     s = sub.add_parser("reproduce", help="reproduce a paper's experiments: "
                                          + ", ".join(available + ["all"]))
     s.add_argument("paper", choices=available + ["all"])

@@ -1,7 +1,10 @@
-"""Filter names -> estimator classes, for the command line and the benchmarks.
+"""Filter names -> estimator classes, for the command line, benchmarks and campaigns.
 
-Classes are imported lazily (``import gnomon`` stays light). To add a filter,
-add one line to ``_ENTRIES``.
+Classes are imported lazily (``import gnomon`` stays light). To add a filter, add
+one line to ``_ENTRIES``; everything else (``gnomon filters``, the benchmarks, the
+speed table, campaigns, the docs' filter tables) finds it here and reads what it
+needs from the class: ``name``, ``summary``, ``paper``, ``kind`` (``"imu"`` or
+``"spacecraft"``), ``needs`` and ``Params``.
 """
 
 from __future__ import annotations
@@ -9,6 +12,10 @@ from __future__ import annotations
 import importlib
 
 from gnomon.errors import InputError
+
+__all__ = ["names", "get", "create", "describe", "KINDS"]
+
+KINDS = ("imu", "spacecraft")
 
 _ENTRIES: dict[str, str] = {
     "mahony": "gnomon.estimators.mahony:Mahony",
@@ -24,9 +31,14 @@ _ENTRIES: dict[str, str] = {
 }
 
 
-def names() -> list[str]:
-    """Registered filter names, sorted."""
-    return sorted(_ENTRIES)
+def names(kind: str | None = None) -> list[str]:
+    """Registered filter names, sorted; ``kind`` ``"imu"`` or ``"spacecraft"`` selects one
+    family."""
+    if kind is None:
+        return sorted(_ENTRIES)
+    if kind not in KINDS:
+        raise InputError(f"expected one of {', '.join(KINDS)}, got {kind!r}", field="kind")
+    return [n for n in sorted(_ENTRIES) if get(n).kind == kind]
 
 
 def get(name: str):
@@ -40,7 +52,20 @@ def get(name: str):
     return getattr(importlib.import_module(module), attr)
 
 
-def create(name: str, params: dict | None = None):
-    """An instance of filter ``name`` with parameters from a mapping (unknown keys raise)."""
+def create(name: str, params: dict | None = None, **overrides):
+    """An instance of filter ``name`` with parameters from a mapping and/or keywords
+    (``create("mahony", kp_acc_rad_s=0.5)``; unknown names raise ``InputError``)."""
     cls = get(name)
-    return cls(cls.Params.from_dict(params or {}))
+    return cls(cls.Params.from_dict({**(params or {}), **overrides}))
+
+
+def describe(kind: str | None = None) -> list[dict]:
+    """One row per filter: ``name``, ``summary``, ``paper``, ``kind``, ``needs`` and its
+    parameters (``Params.describe()``)."""
+    rows = []
+    for name in names(kind):
+        cls = get(name)
+        rows.append({"name": name, "summary": cls.summary, "paper": cls.paper,
+                     "kind": cls.kind, "needs": list(cls.needs),
+                     "params": cls.Params.describe()})
+    return rows

@@ -152,10 +152,3 @@ class PinholeCamera:
             xn, yn = self.distortion.undistort(xn, yn)
         d = np.stack([np.ones_like(xn), xn, yn], -1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-    def inside(self, u, v, margin: float = 0.0):
-        """True where ``(u, v)`` lies within the pixel-centre rectangle (minus ``margin``)."""
-        u = np.asarray(u)
-        v = np.asarray(v)
-        return ((u >= margin) & (u <= self.width - 1 - margin)
-                & (v >= margin) & (v <= self.height - 1 - margin))
