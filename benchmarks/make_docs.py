@@ -61,7 +61,7 @@ def main() -> None:
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
     ap.add_argument("--quick", action="store_true", help="quick speed benchmark")
     args = ap.parse_args()
-    from gnomon.bench import markdown_table
+    from gnomon.speed import markdown_table
     from gnomon.datasets import broad_dir
 
     data = args.broad or broad_dir() or ROOT / "tests" / "data" / "broad"
@@ -88,7 +88,7 @@ trials, every method with its default parameters, causal, the benchmark's own me
 One simulated 100 Hz recording (smooth random rotation, MEMS noise), every method on
 the same samples in the same process: interleaved rounds in a random order, medians,
 compilation excluded, freed memory kept for reuse by every method alike (see
-`gnomon.bench`). `gnomon-batch-mahony-R1000` is 1,000 Mahony filters at once
+`gnomon.speed`). `gnomon-batch-mahony-R1000` is 1,000 Mahony filters at once
 (`gnomon.estimators.mahony.run_batch`, runs innermost for SIMD, one thread), one
 Monte Carlo run each. Run it yourself: `gnomon bench` (a few minutes; `--quick` for
 200,000 samples).

@@ -249,8 +249,8 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    """``gnomon.bench.run_bench(samples, repeats, runs, quick)``."""
-    from gnomon.bench import markdown_table, run_bench
+    """``gnomon.speed.run_bench(samples, repeats, runs, quick)``."""
+    from gnomon.speed import markdown_table, run_bench
 
     res = run_bench(samples=args.samples, repeats=args.repeats, runs=args.runs, quick=args.quick,
                     progress=not args.json)

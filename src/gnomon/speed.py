@@ -1,4 +1,6 @@
-"""Speed of gnomon's filters against the reference libraries, measured in one run.
+"""Speed of gnomon's filters against the reference libraries, in one run (``gnomon bench``).
+
+Not to be confused with ``gnomon.benchmark`` (accuracy on data sets with a reference).
 
 ``run_bench`` simulates one 9-axis IMU recording (``gnomon.simulation.ahrs``,
 100 Hz, smooth random rotation, MEMS noise) and times, interleaved over
