@@ -58,7 +58,8 @@ def needs_full_broad() -> Path:
 
 def assert_same_recording(a: Recording, b: Recording) -> None:
     """Every field equal, exactly (NaN == NaN), with the same dtypes."""
-    for name in ("t", "gyro", "accel", "mag", "sun", "sun_valid", "q_true", "mask"):
+    for name in ("t", "gyro", "accel", "accel_t", "mag", "mag_t", "sun", "sun_valid",
+                 "q_true", "q_onboard", "mask"):
         x, y = getattr(a, name), getattr(b, name)
         assert (x is None) == (y is None), name
         if x is not None:
@@ -68,6 +69,7 @@ def assert_same_recording(a: Recording, b: Recording) -> None:
     assert a.mag_unit == b.mag_unit
     assert a.frames == b.frames
     assert a.source == b.source
+    assert a.meta == b.meta
     assert sorted(a.extra) == sorted(b.extra)
     for key in a.extra:
         assert a.extra[key].dtype == b.extra[key].dtype, key
@@ -103,7 +105,7 @@ def test_hdf5_round_trip_every_field(tmp_path):
     assert_same_recording(rec, back)
     with h5py.File(path) as f:  # the documented layout
         assert f.attrs["format"] == "gnomon-recording"
-        assert int(f.attrs["format_version"]) == 1
+        assert int(f.attrs["format_version"]) == 2
         assert f["mag"].attrs["unit"] == "nT"
         assert f["gyro"].attrs["unit"] == "rad/s"
         assert f["q_true"].shape == (500, 4)
@@ -118,6 +120,35 @@ def test_hdf5_round_trip_minimal_and_uncompressed(tmp_path, compression):
     back = read_recording(write_recording(tmp_path / "m.h5", rec, compression=compression))
     assert_same_recording(rec, back)
     assert back.accel is None and back.q_true is None and back.extra == {}
+
+
+def test_hdf5_round_trip_multi_rate(tmp_path):
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 400))  # gyro ~200 Hz, irregular
+    mag_t = np.arange(t[0], t[-1], 0.02) + 0.001  # ~50 Hz, its own clock
+    acc_t = np.cumsum(rng.uniform(0.009, 0.011, 180)) + t[0]
+    q = rng.normal(size=(t.size, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[:10] = np.nan
+    rec = Recording(t=t, gyro=rng.normal(size=(t.size, 3)), accel=rng.normal(size=(180, 3)),
+                    accel_t=acc_t, mag=rng.normal(size=(mag_t.size, 3)), mag_t=mag_t,
+                    q_onboard=q, meta={"assumed": ["body FRD converted to FLU"], "n": 2})
+    path = write_recording(tmp_path / "multi.h5", rec)
+    back = read_recording(path)
+    assert_same_recording(rec, back)
+    assert not back.single_rate and back.mag.shape == (mag_t.size, 3)
+
+
+def test_hdf5_reads_format_version_1(tmp_path):
+    """A version 1 file (written before sensors had their own rates) reads as before."""
+    rec = full_recording(np.random.default_rng(8), 50)
+    path = write_recording(tmp_path / "v1.h5", rec)
+    with h5py.File(path, "a") as f:  # what gnomon 0.1 wrote: no meta, version 1
+        f.attrs["format_version"] = 1
+        del f.attrs["meta"]
+    back = read_recording(path)
+    assert_same_recording(rec, back)
+    assert back.single_rate and back.meta == {}
 
 
 def test_hdf5_round_trip_real_broad(tmp_path):
@@ -138,8 +169,8 @@ def test_hdf5_rejects_other_files(tmp_path):
     rec = full_recording(np.random.default_rng(3), 20)
     newer = write_recording(tmp_path / "newer.h5", rec)
     with h5py.File(newer, "a") as f:
-        f.attrs["format_version"] = 2
-    with pytest.raises(InputError, match="format_version 2"):
+        f.attrs["format_version"] = 3
+    with pytest.raises(InputError, match="format_version 3"):
         read_recording(newer)
 
     nogyro = write_recording(tmp_path / "nogyro.h5", rec)

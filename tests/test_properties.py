@@ -83,3 +83,74 @@ def test_split_run_resumes_exactly(name):
     second.set_state(first.get_state())
     b = second.run(rec.slice(157, 400)).q
     np.testing.assert_allclose(np.vstack([a, b]), whole, rtol=0, atol=1e-12)
+
+
+# ---------------------------------------------------------------- sensors at their own rates
+def _multi_rate(rng, n=300):
+    from gnomon.recording import Recording
+
+    t = np.cumsum(rng.uniform(0.004, 0.006, n))
+    mag_t = np.sort(rng.uniform(t[0] - 0.01, t[-1] + 0.01, n // 4))
+    mag_t = mag_t[np.concatenate([[True], np.diff(mag_t) > 0])]
+    return Recording(t=t, gyro=rng.normal(size=(n, 3)),
+                     accel=rng.normal(size=(n, 3)), mag=rng.normal(size=(mag_t.size, 3)),
+                     mag_t=mag_t)
+
+
+def test_on_time_base_places_every_sample_once_and_invents_none():
+    rng = np.random.default_rng(11)
+    rec = _multi_rate(rng)
+    base = rec.on_time_base("mag")
+    arrivals = rec.arrivals("mag")
+    new = np.isfinite(base).all(axis=1)
+    assert np.array_equal(new, arrivals > 0)  # a row holds a value only if a sample arrived
+    assert np.isnan(base[~new]).all()
+    used = rec.mag_t <= rec.t[-1]
+    assert arrivals.sum() == used.sum()
+    for k in np.flatnonzero(new):  # each value is the mean of the samples of its interval
+        lo = -np.inf if k == 0 else rec.t[k - 1]
+        inside = (rec.mag_t > lo) & (rec.mag_t <= rec.t[k])
+        np.testing.assert_allclose(base[k], rec.mag[inside].mean(axis=0), rtol=1e-14)
+    assert rec.on_time_base("accel") is rec.accel  # a sensor on the time base: itself
+
+
+def test_slice_keeps_each_sample_in_its_arrival_row():
+    rng = np.random.default_rng(12)
+    rec = _multi_rate(rng)
+    whole = rec.on_time_base("mag")
+    a, b = rec.slice(0, 120), rec.slice(120, len(rec))
+    np.testing.assert_array_equal(np.concatenate([a.on_time_base("mag"),
+                                                  b.on_time_base("mag")]), whole)
+    assert a.mag.shape[0] + b.mag.shape[0] == rec.arrivals("mag").sum()
+
+
+def test_multi_rate_validation_names_the_field():
+    from gnomon.errors import InputError
+    from gnomon.recording import Recording
+
+    t = np.arange(10) * 0.01
+    with pytest.raises(InputError, match="mag_t.*increase strictly") as e:
+        Recording(t=t, gyro=np.zeros((10, 3)), mag=np.ones((3, 3)), mag_t=[0.0, 0.02, 0.02])
+    assert e.value.row == 2
+    with pytest.raises(InputError, match=r"expected shape \(3, 3\)"):
+        Recording(t=t, gyro=np.zeros((10, 3)), mag=np.ones((4, 3)), mag_t=[0.0, 0.02, 0.04])
+    with pytest.raises(InputError, match="given without 'accel'"):
+        Recording(t=t, gyro=np.zeros((10, 3)), accel_t=t)
+    same = Recording(t=t, gyro=np.zeros((10, 3)), accel=np.ones((10, 3)), accel_t=t.copy())
+    assert same.single_rate and same.accel_t is None  # own stamps equal to t: single rate
+
+
+def test_a_filter_without_multi_rate_support_refuses_such_a_recording():
+    from gnomon.errors import InputError
+    from gnomon.estimators.base import Estimator
+
+    class Plain(Estimator):
+        name = "plain"
+        needs = ("gyro", "mag")
+
+        def reset(self):
+            pass
+
+    rec = _multi_rate(np.random.default_rng(13))
+    with pytest.raises(InputError, match="needs every sensor on the gyro's time stamps"):
+        Plain().check_inputs(rec)

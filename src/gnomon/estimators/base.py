@@ -173,6 +173,10 @@ class Estimator:
     #: The reference frame the filter estimates against; ``check_inputs`` refuses a
     #: recording whose ``frames['reference']`` names another one (None: any).
     reference_frame: ClassVar[str | None] = None
+    #: Whether ``run`` takes sensors at their own rates (``Recording.on_time_base``: a
+    #: measurement is used only in its arrival row); a filter that does not refuses a
+    #: multi-rate recording rather than misreading it.
+    multi_rate: ClassVar[bool] = False
     #: Attributes that make up the evolving state (saved by ``get_state``).
     state_fields: ClassVar[tuple[str, ...]] = ()
 
@@ -238,6 +242,12 @@ class Estimator:
             if not present:
                 raise InputError(f"filter '{self.name}' needs it; the recording has none",
                                  field=name, file=rec.source or None)
+        if not self.multi_rate and not rec.single_rate:
+            rates = ", ".join(f"{n} {rec.rate_hz(n):.4g} Hz" for n in ("gyro", "accel", "mag")
+                              if n == "gyro" or getattr(rec, n) is not None)
+            raise InputError(f"filter '{self.name}' needs every sensor on the gyro's time "
+                             f"stamps; the recording has its own rates ({rates})",
+                             field="t", file=rec.source or None)
         ref = rec.frames.get("reference")
         if self.reference_frame is not None and ref is not None and ref != self.reference_frame:
             raise InputError(f"filter '{self.name}' estimates against {self.reference_frame}; "

@@ -5,8 +5,9 @@ this same layout. Every array is stored exactly (no conversion, lossless gzip
 by default), so ``read_recording(write_recording(p, rec))`` gives back equal
 arrays bit for bit.
 
-Layout (format version 1)
--------------------------
+Layout (format version 2; version 1 files, which lack ``accel_t``, ``mag_t``,
+``q_onboard`` and ``meta``, are read as before)
+---------------------------------------------------------------------------------
 
 =====================  ==========  ========  ==========================================
 name                   shape       unit      meaning
@@ -14,14 +15,17 @@ name                   shape       unit      meaning
 ``/t``                 (N,)        s         sample times, strictly increasing
 ``/gyro``              (N, 3)      rad/s     angular rate of body b w.r.t. inertial
                                              space, in b
-``/accel``             (N, 3)      m/s²      specific force in b; optional
-``/mag``               (N, 3)      attr      magnetic field in b; optional; attribute
+``/accel``             (Na, 3)     m/s²      specific force in b; optional
+``/accel_t``           (Na,)       s         its own sample times; absent: ``/t``
+``/mag``               (Nm, 3)     attr      magnetic field in b; optional; attribute
                                              ``unit`` one of ``T, mT, uT, nT, gauss``
+``/mag_t``             (Nm,)       s         its own sample times; absent: ``/t``
 ``/sun``               (N, 3)      1         sun direction in b (unit vectors);
                                              optional; NaN rows where not valid
 ``/sun_valid``         (N,)        bool      sun measurement present; with ``/sun``
 ``/q_true``            (N, 4)      1         truth ``q_rb`` ``[w, x, y, z]`` (body b to
                                              reference r); optional; NaN rows = missing
+``/q_onboard``         (N, 4)      1         the device's own estimate ``q_rb``; optional
 ``/mask``              (N,)        bool      samples that count for scoring; optional
 ``/extra/<name>``      (N, ...)    SI        further time series (``Recording.extra``),
                                              numeric or bool
@@ -29,8 +33,8 @@ name                   shape       unit      meaning
 
 Root attributes: ``format = "gnomon-recording"``, ``format_version = 1``,
 ``frames`` (a JSON object, e.g. ``{"reference": "ENU", "body": "sensor"}``),
-``source`` (free text: where the data came from) and ``mag_unit`` (kept also
-when there is no ``/mag``). Datasets ``t``, ``gyro``, ``accel`` carry a
+``source`` (free text: where the data came from), ``mag_unit`` (kept also
+when there is no ``/mag``) and ``meta`` (a JSON object: what a reader assumed). Datasets ``t``, ``gyro``, ``accel`` carry a
 ``unit`` attribute (``s``, ``rad/s``, ``m/s^2``) that the reader checks.
 Optional datasets are absent, never empty. A reader of a later
 ``format_version`` than it knows refuses the file with a clear message.
@@ -53,11 +57,12 @@ __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "write_recording", "read_recording",
            "is_gnomon_recording"]
 
 FORMAT_NAME = "gnomon-recording"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 # dataset -> fixed unit attribute written and checked
-_FIXED_UNITS = {"t": "s", "gyro": "rad/s", "accel": "m/s^2"}
-_OPTIONAL = ("accel", "mag", "sun", "sun_valid", "q_true", "mask")
+_FIXED_UNITS = {"t": "s", "gyro": "rad/s", "accel": "m/s^2", "accel_t": "s", "mag_t": "s"}
+_OPTIONAL = ("accel", "accel_t", "mag", "mag_t", "sun", "sun_valid", "q_true", "q_onboard",
+             "mask")
 
 
 def _h5py():
@@ -113,6 +118,7 @@ def _write(h5py, path: Path, rec: Recording, put) -> None:
         f.attrs["frames"] = json.dumps(rec.frames, sort_keys=True)
         f.attrs["source"] = str(rec.source)
         f.attrs["mag_unit"] = rec.mag_unit
+        f.attrs["meta"] = json.dumps(rec.meta, sort_keys=True, default=str)
         for name in ("t", "gyro") + _OPTIONAL:
             value = getattr(rec, name)
             if value is None:
@@ -186,6 +192,13 @@ def read_recording(path: str | os.PathLike) -> Recording:
                                  field="frames") from None
             if frames is not None and not isinstance(frames, dict):
                 raise InputError("not a JSON object", file=str(path), field="frames")
+            try:
+                meta = json.loads(_attr_str(f.attrs["meta"])) if "meta" in f.attrs else {}
+            except json.JSONDecodeError as err:
+                raise InputError(f"not a JSON object: {err}", file=str(path),
+                                 field="meta") from None
+            if not isinstance(meta, dict):
+                raise InputError("not a JSON object", file=str(path), field="meta")
             source = _attr_str(f.attrs.get("source", ""))
             extra = {}
             if "extra" in f:
@@ -202,6 +215,6 @@ def read_recording(path: str | os.PathLike) -> Recording:
     try:
         if frames is not None:
             data["frames"] = frames
-        return Recording(mag_unit=mag_unit, source=source, extra=extra, **data)
+        return Recording(mag_unit=mag_unit, source=source, extra=extra, meta=meta, **data)
     except InputError as err:
         raise err.with_file(str(path)) from None
