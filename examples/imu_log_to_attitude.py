@@ -6,9 +6,7 @@
 import sys
 from pathlib import Path
 
-from gnomon.estimators import registry
-from gnomon.io import read
-from gnomon.metrics import score
+import gnomon
 from gnomon.report.figures import plot_estimate
 
 HERE = Path(__file__).resolve().parent
@@ -16,11 +14,11 @@ trial = HERE.parent / "tests" / "data" / "broad" / "01_undisturbed_slow_rotation
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(".")
 out.mkdir(parents=True, exist_ok=True)
 
-rec = read(trial)
+rec = gnomon.read(trial)
 print(f"{rec.source}: {len(rec)} samples at {rec.sample_rate_hz:.1f} Hz, mag in {rec.mag_unit}")
 for name in ("mahony", "tilt-cf"):
-    est = registry.create(name).run(rec)
-    s = score(rec.q_true, est.q, rec.score_mask)
+    est = gnomon.make_filter(name).run(rec)
+    s = gnomon.score(rec.q_true, est.q, rec.score_mask)
     print(f"{name:>10}: total {s['total_deg']:.2f} deg, heading {s['heading_deg']:.2f} deg, "
           f"inclination {s['inclination_deg']:.2f} deg")
     plot_estimate(rec, est, out / f"{name}.png")

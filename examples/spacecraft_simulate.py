@@ -5,11 +5,11 @@
 
 import numpy as np
 
+import gnomon
 from gnomon.metrics import error_angle_rad
-from gnomon.scenarios import load_scenario, simulate
 
-scenario = load_scenario("seed001").replace({"duration_s": 1200})
-rec = simulate(scenario)
+scenario = gnomon.load_scenario("seed001").replace({"duration_s": 1200})
+rec = gnomon.simulate(scenario)
 eclipse = rec.extra["eclipse"] < 1.0
 angle = np.degrees(error_angle_rad(np.tile([1.0, 0, 0, 0], (len(rec), 1)), rec.q_true))
 print(f"{len(rec)} samples; sun sensor valid {rec.sun_valid.mean():.0%} of the time; "
