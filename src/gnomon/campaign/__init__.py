@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.metrics import score_run
 
 __all__ = ["Distribution", "parse_distribution", "parse_vary", "run_seed", "draw_parameters",
            "run_campaign", "run_one", "CampaignResult", "simulate_and_score",
@@ -297,7 +298,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
         if isinstance(q, BaseException):
             results[k] = q
             return
-        scores = score_estimate(recs[k], q, _settle_s(scenarios[k], settle_s))
+        scores = score_run(recs[k], q, _settle_s(scenarios[k], settle_s))
         results[k].update({f"{name}.{m}": v for m, v in scores.items()})
 
     results: list = []
@@ -338,42 +339,6 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
 
 simulate_and_score.accepts = _accepts_filter_key  # type: ignore[attr-defined]
 simulate_and_score.batch = simulate_and_score_batch  # type: ignore[attr-defined]
-
-
-def score_estimate(rec, q_est, settle_s: float = 0.0) -> dict:
-    """Error statistics (deg) of ``q_est`` against ``rec.q_true`` after ``settle_s``.
-
-    With a vertical reference axis (ENU/NWU recordings) also the RMS of BROAD's
-    ``heading_rms_deg`` and ``inclination_rms_deg`` (a tilt-only filter is judged by
-    the latter)."""
-    from gnomon.metrics import broad_errors_rad, error_angle_rad
-
-    err = np.degrees(error_angle_rad(rec.q_true, q_est))
-    m = (rec.t - rec.t[0]) >= settle_s
-    m &= np.isfinite(err)
-    out = {"rms_deg": _rms(err[m]), "max_deg": _max(err[m]), "mean_deg": _mean(err[m])}
-    if rec.frames.get("reference") in ("ENU", "NWU"):
-        parts = broad_errors_rad(rec.q_true, q_est)
-        out.update(heading_rms_deg=_rms(np.degrees(parts["heading"][m])),
-                   inclination_rms_deg=_rms(np.degrees(parts["inclination"][m])))
-    if rec.sun_valid is not None:
-        sun = m & rec.sun_valid
-        ecl = m & ~rec.sun_valid
-        out.update(sunlit_rms_deg=_rms(err[sun]), eclipse_rms_deg=_rms(err[ecl]),
-                   eclipse_max_deg=_max(err[ecl]))
-    return out
-
-
-def _rms(x):
-    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
-
-
-def _max(x):
-    return float(np.max(x)) if x.size else float("nan")
-
-
-def _mean(x):
-    return float(np.mean(x)) if x.size else float("nan")
 
 
 # --------------------------------------------------------------------------- one run / chunk

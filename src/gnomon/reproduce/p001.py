@@ -33,8 +33,9 @@ import tempfile
 
 import numpy as np
 
-from gnomon.campaign import run_campaign, run_seed, score_estimate
+from gnomon.campaign import run_campaign, run_seed
 from gnomon.errors import InputError
+from gnomon.metrics import score_run
 from gnomon.uncertainty import DEFAULT_MODEL, MODELS, inject
 
 __all__ = ["run", "case_task", "SCENARIO", "SETTLE_S"]
@@ -76,7 +77,7 @@ def _run_case(scenario, params: dict, seed: int, filters, keep_series=False):
         fp = {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith(f"filter.{name}.")}
         f = registry.create(name, fp)
         est = f.run(rec, inertia=J) if name == "ekf-spacecraft" else f.run(rec)
-        out.update({f"{name}.{k}": v for k, v in score_estimate(rec, est.q, SETTLE_S).items()})
+        out.update({f"{name}.{k}": v for k, v in score_run(rec, est.q, SETTLE_S).items()})
         series[name] = est
     out.update(_geometry(rec))
     return (out, rec, series) if keep_series else out
