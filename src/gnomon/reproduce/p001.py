@@ -33,7 +33,7 @@ import tempfile
 
 import numpy as np
 
-from gnomon.campaign import run_campaign, run_seed
+from gnomon.campaign import Task, accepts_filter_key, run_campaign, run_seed
 from gnomon.errors import InputError
 from gnomon.metrics import score_run
 from gnomon.uncertainty import DEFAULT_MODEL, MODELS, inject
@@ -83,7 +83,7 @@ def _run_case(scenario, params: dict, seed: int, filters, keep_series=False):
     return (out, rec, series) if keep_series else out
 
 
-def case_task(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) -> dict:
+def _case(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) -> dict:
     """Campaign task: simulate with one uncertainty source injected, run ``filters``, score.
 
     ``params``: ``uncertainty.source`` ("none", "inertia", "field_model", "sun_sensor"),
@@ -94,12 +94,11 @@ def case_task(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) ->
 
 
 def _accepts(key: str) -> bool:
-    from gnomon.campaign import _accepts_filter_key
-
-    return key in _TASK_KEYS or _accepts_filter_key(key)
+    return key in _TASK_KEYS or accepts_filter_key(key)
 
 
-case_task.accepts = _accepts  # type: ignore[attr-defined]
+#: the campaign task of the experiments (``"gnomon.reproduce.p001:case_task"``): see ``_case``
+case_task = Task(_case, accepts=_accepts, name="gnomon.reproduce.p001:case_task")
 
 
 def _campaign(name, vary, seeds, filters, base, root, **kw):
