@@ -31,14 +31,13 @@ from gnomon.campaign.default_task import (
     simulate_and_score_batch,
 )
 from gnomon.campaign.distributions import Distribution, parse_distribution, parse_vary
-from gnomon.campaign.result import CampaignResult, CampaignSummary, summarize
+from gnomon.campaign.result import CampaignResult, CampaignSummary
 from gnomon.campaign.runner import run_campaign, run_one
 from gnomon.campaign.seeds import Run, describe_run, draw_parameters, run_seed
 from gnomon.campaign.store import read_manifest, read_results
 from gnomon.campaign.task import Task
 
-__all__ = ["run_campaign", "run_one", "CampaignResult", "CampaignSummary", "summarize",
-           "read_results", "read_manifest", "Task", "simulate_and_score",
-           "simulate_and_score_batch", "accepts_filter_key", "DEFAULT_TASK", "Distribution",
-           "parse_distribution", "parse_vary", "Run", "describe_run", "run_seed",
-           "draw_parameters"]
+__all__ = ["run_campaign", "run_one", "CampaignResult", "CampaignSummary", "read_results",
+           "read_manifest", "Task", "simulate_and_score", "simulate_and_score_batch",
+           "accepts_filter_key", "DEFAULT_TASK", "Distribution", "parse_distribution",
+           "parse_vary", "Run", "describe_run", "run_seed", "draw_parameters"]

@@ -13,7 +13,7 @@ import math
 import pathlib
 from typing import Any
 
-__all__ = ["CampaignResult", "CampaignSummary", "metric_columns", "summarize"]
+__all__ = ["CampaignResult", "CampaignSummary", "metric_columns"]
 
 #: columns of every table that are not metrics
 BOOKKEEPING = ("index", "seed", "status", "error", "elapsed_s", "cpu_s")
@@ -43,8 +43,23 @@ class CampaignResult:
         return self.ran / self.elapsed_s if self.elapsed_s > 0 else float("nan")
 
     def summary(self) -> CampaignSummary:
-        """:func:`summarize` of this result."""
-        return summarize(self)
+        """Counts of this call and statistics of the table over its ``status == "ok"``
+        rows (mean, 95th percentile by linear interpolation, max), as data."""
+        df = self.table
+        ok = df[df["status"] == "ok"]
+        metrics = {c: {"mean": _finite(ok[c].mean()), "p95": _finite(ok[c].quantile(0.95)),
+                       "max": _finite(ok[c].max())} for c in metric_columns(df) if len(ok)}
+        row = None
+        if self.only is not None:
+            row = {}
+            for k, v in df.iloc[0].to_dict().items():
+                v = v.item() if hasattr(v, "item") else v
+                row[k] = None if isinstance(v, float) and not math.isfinite(v) else v
+        return CampaignSummary(
+            runs=int(self.runs), ran=self.ran, failed_now=self.failed, rows=int(len(df)),
+            failed_total=int((df["status"] != "ok").sum()), elapsed_s=self.elapsed_s,
+            runs_per_s=self.runs_per_s, path=str(self.path) if self.path else None,
+            metrics=metrics, row=row)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,23 +107,3 @@ def metric_columns(table) -> list[str]:
     neither bookkeeping nor ``param.KEY``."""
     return [c for c in table.columns if c not in BOOKKEEPING
             and not c.startswith("param.") and table[c].dtype.kind == "f"]
-
-
-def summarize(result: CampaignResult) -> CampaignSummary:
-    """The :class:`CampaignSummary` of ``result`` (statistics over its ``status == "ok"``
-    rows: mean, 95th percentile (linear interpolation), max)."""
-    df = result.table
-    ok = df[df["status"] == "ok"]
-    metrics = {c: {"mean": _finite(ok[c].mean()), "p95": _finite(ok[c].quantile(0.95)),
-                   "max": _finite(ok[c].max())} for c in metric_columns(df) if len(ok)}
-    row = None
-    if result.only is not None:
-        row = {}
-        for k, v in df.iloc[0].to_dict().items():
-            v = v.item() if hasattr(v, "item") else v
-            row[k] = None if isinstance(v, float) and not math.isfinite(v) else v
-    return CampaignSummary(
-        runs=int(result.runs), ran=result.ran, failed_now=result.failed, rows=int(len(df)),
-        failed_total=int((df["status"] != "ok").sum()), elapsed_s=result.elapsed_s,
-        runs_per_s=result.runs_per_s, path=str(result.path) if result.path else None,
-        metrics=metrics, row=row)

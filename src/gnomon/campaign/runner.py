@@ -41,6 +41,8 @@ def _prepare(scenario, vary, root_seed, task, task_options):
     sc = as_scenario(scenario)
     dists = parse_vary(vary)
     resolved = resolve_task(task)
+    # a task named by a string is resolved again in each worker (and recorded by that name)
+    spec_task = task if isinstance(task, str) else resolved
     scenario_keys = []
     for key, dist in dists.items():
         try:
@@ -63,28 +65,27 @@ def _prepare(scenario, vary, root_seed, task, task_options):
         if resolved.accepts(key):
             continue
         raise InputError("unknown key: not a scenario key nor a parameter of the task "
-                         f"{_task_name(task, resolved)}", field=key)
+                         f"{_task_name(spec_task)}", field=key)
     try:
         json.dumps(task_options)
     except TypeError:
         raise InputError("task options must be JSON values", field="task_options") from None
-    # a scenario loaded from a preset/file is passed as its validated config (picklable);
-    # a task named by a string is resolved again in each worker
+    # a scenario loaded from a preset/file is passed as its validated config (picklable)
     spec = CampaignSpec(scenario=sc.to_dict(), dists=dists, scenario_keys=tuple(scenario_keys),
-                        root_seed=int(root_seed), task=task if isinstance(task, str) else resolved,
-                        task_options=dict(task_options))
+                        root_seed=int(root_seed), task=spec_task, task_options=dict(task_options))
     return sc, spec
 
 
-def _task_name(task, resolved) -> str:
-    return task if isinstance(task, str) else resolved.name
+def _task_name(task) -> str:
+    """The name a task is recorded by: the string it was given as, else ``Task.name``."""
+    return task if isinstance(task, str) else task.name
 
 
 def _manifest(sc, spec: CampaignSpec, runs: int) -> dict:
     return {"scenario": spec.scenario, "scenario_source": sc.source, "runs": int(runs),
             "root_seed": spec.root_seed,
             "vary": {k: (d.text or f"{d.kind}{d.args}") for k, d in spec.dists.items()},
-            "task": _task_name(spec.task, spec.task), "task_options": spec.task_options}
+            "task": _task_name(spec.task), "task_options": spec.task_options}
 
 
 def _chunks(pending: list[int], n_parallel: int, chunk_size: int | None) -> list[list[int]]:
