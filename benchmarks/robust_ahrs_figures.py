@@ -41,8 +41,8 @@ def main(data_dir="../shared/data/broad", out_dir="docs/figures") -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gnomon.benchmark import score_broad
     from gnomon.estimators.robust_ahrs import RobustAHRS
+    from gnomon.metrics import score_broad
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -23,10 +23,10 @@ GRID = {"tau_mag_s": [12.0, 20.0, 30.0], "heading_rate_noise_s": [0.0, 0.3, 0.6]
 
 def main(data_dir="../shared/data/broad", out=None) -> dict:
     from gnomon.anchors import run_anchor
-    from gnomon.benchmark import score_broad
     from gnomon.estimators.robust_ahrs import RobustAHRS
     from gnomon.io import read
     from gnomon.io.broad import broad_groups, broad_trials
+    from gnomon.metrics import score_broad
 
     recs = [read(p, format="broad") for p in broad_trials(data_dir)]
     vqf = np.array([score_broad(r, run_anchor("vqf", r))["total_deg"] for r in recs])

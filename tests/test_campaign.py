@@ -15,12 +15,19 @@ import pandas as pd
 import pytest
 
 from gnomon.campaign import (
+    CampaignResult,
+    describe_run,
     draw_parameters,
     parse_distribution,
+    read_manifest,
     read_results,
     run_campaign,
+    run_one,
     run_seed,
+    simulate_and_score,
 )
+from gnomon.campaign.store import rows_to_frame
+from gnomon.campaign.task import resolve_task
 from gnomon.errors import InputError
 
 SRC = os.path.join(os.path.dirname(__file__), os.pardir, "src")
@@ -81,6 +88,54 @@ def test_seeds_are_the_spawned_sequences():
     d = {"a": parse_distribution("normal(0,1)"), "b": parse_distribution("uniform(0,1)")}
     assert draw_parameters(11, 3, d) == draw_parameters(11, 3, d)
     assert draw_parameters(11, 3, d) != draw_parameters(11, 4, d)
+    run = describe_run(11, 3, d)
+    assert (run.index, run.seed, run.params) == (3, run_seed(11, 3), draw_parameters(11, 3, d))
+
+
+def _task_fn(scenario, params, seed):
+    return {"x": 1.0}
+
+
+def test_a_task_is_a_task_object_a_function_or_its_name():
+    assert resolve_task("gnomon.campaign:simulate_and_score") is simulate_and_score
+    assert simulate_and_score.name == "gnomon.campaign:simulate_and_score"
+    assert simulate_and_score.batch is not None
+    assert simulate_and_score.accepts("filter.mahony.kp_acc_rad_s")
+    t = resolve_task(_task_fn)
+    assert t.batch is None and not t.accepts("anything") and t.name.endswith(":_task_fn")
+    assert resolve_task(t) is t
+    for bad in ("nosuchmodule:task", "gnomon.campaign", 3):
+        with pytest.raises(InputError, match="task"):
+            resolve_task(bad)
+
+    def old_style(scenario, params, seed):    # the former way: attributes on a function
+        return {}
+
+    old_style.batch = lambda *a, **k: []
+    with pytest.raises(InputError, match="Task"):
+        resolve_task(old_style)
+
+
+def test_summary_is_the_json_contract(tmp_path, reference):
+    res = CampaignResult(reference, tmp_path / "results.parquet", 12, 0, 2.0, 12)
+    d = res.summary().to_dict()
+    assert list(d) == ["runs", "ran", "failed_now", "rows", "failed_total", "elapsed_s",
+                       "runs_per_s", "path", "metrics"]
+    assert (d["runs"], d["rows"], d["runs_per_s"]) == (12, 12, 6.0)
+    col = "mekf-spacecraft.rms_deg"
+    assert d["metrics"][col] == {"mean": reference[col].mean(),
+                                 "p95": reference[col].quantile(0.95),
+                                 "max": reference[col].max()}
+    assert not any(c.startswith("param.") or c in ("seed", "cpu_s") for c in d["metrics"])
+    one = CampaignResult(reference.iloc[[4]], None, 1, 0, 0.0, 12, 4).summary().to_dict()
+    assert one["row"]["index"] == 4 and one["path"] is None and one["runs_per_s"] is None
+
+
+def test_run_one_and_the_manifest(tmp_path, reference):
+    row = run_one("seed001", 5, VARY, root_seed=7, filters=FILTERS)
+    _same(rows_to_frame([row]), reference[reference["index"] == 5])
+    with pytest.raises(InputError, match="no campaign"):
+        read_manifest(tmp_path)
 
 
 def test_sigkill_then_resume_gives_the_uninterrupted_table(tmp_path, reference):
@@ -118,6 +173,9 @@ def test_sigkill_then_resume_gives_the_uninterrupted_table(tmp_path, reference):
     with pytest.raises(InputError, match="root_seed"):
         run_campaign("seed001", 12, out, VARY, root_seed=8, filters=FILTERS, resume=True,
                      progress=False)
+    m = read_manifest(out)
+    assert (m["runs"], m["root_seed"], m["task"]) == (12, 7, "gnomon.campaign:simulate_and_score")
+    assert m["vary"] == VARY and m["task_options"] == {"filters": FILTERS}
 
 
 def test_failing_runs_are_recorded_and_the_rest_finish(tmp_path):

@@ -8,7 +8,7 @@ from conftest import synthetic_imu
 
 import gnomon.estimators.mahony as mahony_mod
 import gnomon.scenarios as scenarios_mod
-from gnomon.campaign import run_campaign, simulate_and_score, simulate_and_score_batch
+from gnomon.campaign import Task, run_campaign, simulate_and_score, simulate_and_score_batch
 from gnomon.estimators.mahony import Mahony, MahonyParams
 from gnomon.rotation import quat_from_euler
 
@@ -77,18 +77,19 @@ def _broken_batch(scenarios, params_list, seeds, settle_s=1.0):
     raise RuntimeError("batch form broken")
 
 
-def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls, monkeypatch):
-    monkeypatch.setattr(_imu_task, "batch", _imu_task_batch, raising=False)
+def test_campaign_chunks_use_the_batch_form_and_fall_back(tmp_path, batch_calls):
     res = run_campaign("seed001", 6, tmp_path / "a", root_seed=2, executor="serial",
-                       task=_imu_task, chunk_size=3, progress=False)
+                       task=Task(_imu_task, batch=_imu_task_batch), chunk_size=3,
+                       progress=False)
     assert batch_calls == [3, 3]
     t = res.table.sort_values("index")
     assert (t["status"] == "ok").all()
     alone = [_imu_task(None, {}, s)["q_end_w"] for s in t["seed"]]
     np.testing.assert_allclose(t["q_end_w"], alone, atol=1e-12)
-    monkeypatch.setattr(_imu_task, "batch", _broken_batch)  # raises: each run alone
+    # a batch form that raises: each run alone
     res = run_campaign("seed001", 6, tmp_path / "b", root_seed=2, executor="serial",
-                       task=_imu_task, chunk_size=3, progress=False)
+                       task=Task(_imu_task, batch=_broken_batch), chunk_size=3,
+                       progress=False)
     assert (res.table["status"] == "ok").all()
     np.testing.assert_allclose(res.table.sort_values("index")["q_end_w"], alone, atol=1e-12)
 

@@ -1,5 +1,7 @@
 """Metrics on hand-computed cases."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -59,3 +61,55 @@ def test_nan_rows_propagate_and_rms_masks():
     assert s["samples"] == 2
     assert s["total_deg"] == pytest.approx(np.degrees(np.sqrt(0.05)))
     assert s["max_deg"] == pytest.approx(np.degrees(0.3))
+
+
+def _scored_recording(frames, with_sun):
+    """Ten samples at 1 s, truth identity, estimate rotated 0.01·k rad (k = 0..9) about x."""
+    from gnomon.recording import Recording
+
+    n = 10
+    t = np.arange(n, dtype=float)
+    q_est = quat_from_rotvec(np.outer(0.01 * np.arange(n), [1.0, 0.0, 0.0]))
+    sun = None
+    if with_sun:
+        sun = np.tile([1.0, 0.0, 0.0], (n, 1))
+        sun[6:] = np.nan                                           # eclipse from t = 6 s
+    rec = Recording(t=t, gyro=np.zeros((n, 3)), sun=sun, q_true=np.tile([1.0, 0, 0, 0], (n, 1)),
+                    frames=frames)
+    return rec, q_est
+
+
+def test_score_run_is_the_campaign_formula():
+    """Degrees first, then RMS / max / mean over the samples from ``settle_s`` on."""
+    rec, q_est = _scored_recording({"reference": "o", "body": "b"}, with_sun=True)
+    s = metrics.score_run(rec, q_est, settle_s=2.0)
+    err = np.degrees(metrics.error_angle_rad(rec.q_true, q_est))
+    x, lit, dark = err[2:], err[2:6], err[6:]
+    assert s == {"rms_deg": float(np.sqrt(np.mean(x * x))), "max_deg": float(x.max()),
+                 "mean_deg": float(x.mean()),
+                 "sunlit_rms_deg": float(np.sqrt(np.mean(lit * lit))),
+                 "eclipse_rms_deg": float(np.sqrt(np.mean(dark * dark))),
+                 "eclipse_max_deg": float(dark.max())}
+    assert s["max_deg"] == pytest.approx(np.degrees(0.09), abs=1e-12)
+    late = metrics.score_run(rec, q_est, settle_s=100.0)            # nothing left to score
+    assert all(np.isnan(v) for v in late.values())
+
+
+def test_score_run_splits_heading_and_inclination_on_a_vertical_reference():
+    rec, q_est = _scored_recording({"reference": "ENU", "body": "sensor"}, with_sun=False)
+    s = metrics.score_run(rec, q_est)
+    assert set(s) == {"rms_deg", "max_deg", "mean_deg", "heading_rms_deg",
+                      "inclination_rms_deg"}
+    assert s["heading_rms_deg"] == pytest.approx(0.0, abs=1e-12)   # about x: tilt only
+    assert s["inclination_rms_deg"] == pytest.approx(s["rms_deg"], rel=1e-9)
+
+
+def test_score_broad_over_the_score_mask():
+    from gnomon.errors import InputError
+
+    rec, q_est = _scored_recording({"reference": "ENU", "body": "sensor"}, with_sun=False)
+    s = metrics.score_broad(rec, q_est)
+    e = metrics.broad_errors_rad(rec.q_true, q_est)
+    assert s == {f"{k}_deg": metrics.rms_deg(e[k]) for k in ("total", "heading", "inclination")}
+    with pytest.raises(InputError, match="no sample"):
+        metrics.score_broad(dataclasses.replace(rec, mask=np.zeros(len(rec), bool)), q_est)

@@ -195,8 +195,8 @@ EXCERPTS = {  # measured with the shipped defaults; VQF on the same excerpt for 
 @pytest.mark.parametrize("name", sorted(EXCERPTS))
 def test_broad_excerpt_regression(name):
     from gnomon.anchors import run_anchor
-    from gnomon.benchmark import score_broad
     from gnomon.io import read
+    from gnomon.metrics import score_broad
 
     rec = read(DATA / name)
     got = score_broad(rec, RobustAHRS().run(rec).q)

@@ -30,24 +30,14 @@ import numpy as np
 from gnomon import anchors as anchors_mod
 from gnomon.errors import InputError
 from gnomon.estimators import registry
-from gnomon.metrics import broad_errors_rad, rms_deg
+from gnomon.metrics import score_broad
 from gnomon.recording import Recording
 
-__all__ = ["run_broad", "score_broad", "DEFAULT_FILTERS"]
+__all__ = ["run_broad", "DEFAULT_FILTERS"]
 
 #: gnomon filters run by default (all registered filters that take gyro+acc+mag in ENU)
 DEFAULT_FILTERS: tuple[str, ...] = ("mahony", "eskf-r6", "eskf-r3", "tilt-cf", "robust-ahrs")
 _KEYS = ("total", "heading", "inclination")
-
-
-def score_broad(rec: Recording, q_est: np.ndarray) -> dict[str, float]:
-    """BROAD RMSE (deg) of ``q_est`` (N, 4) on ``rec``: keys total/heading/inclination_deg."""
-    m = rec.score_mask
-    if not m.any():
-        raise InputError("no sample with movement and a valid truth to score",
-                         file=rec.source or None, field="movement")
-    e = broad_errors_rad(rec.q_true[m], np.asarray(q_est)[m])
-    return {f"{k}_deg": rms_deg(e[k]) for k in _KEYS}
 
 
 def _methods(filters: Sequence[str], anchors: Sequence[str] | None):

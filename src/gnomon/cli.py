@@ -204,30 +204,49 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_campaign(args) -> int:
-    """``gnomon.campaign.campaign_cli(scenario, runs, out, vary, ...)`` (``run_campaign``)."""
-    from gnomon.campaign import campaign_cli
+    """``gnomon.campaign.run_campaign(scenario, runs, out, vary, ...).summary()``."""
+    from gnomon.campaign import run_campaign
 
-    summary = campaign_cli(args.scenario, args.runs, args.out, args.vary or [],
-                           executor=args.executor, scheduler=args.scheduler,
-                           workers=args.workers, resume=args.resume, only=args.only,
-                           root_seed=args.seed, filters=args.filter,
-                           progress=not args.json and sys.stderr.isatty())
+    summary = run_campaign(args.scenario, args.runs, args.out, args.vary or [],
+                           root_seed=args.seed, executor=args.executor,
+                           scheduler=args.scheduler, workers=args.workers, resume=args.resume,
+                           only=args.only, filters=args.filter,
+                           progress=not args.json and sys.stderr.isatty()).summary()
     if args.json:
-        print_json(summary)
-        return 0
-    print(f"campaign {args.scenario}: {summary['rows']} of {summary['runs']} runs in the table "
-          f"({summary['ran']} ran now, {summary['failed_total']} failed), "
-          f"{summary['runs_per_s']:.2f} runs/s")
-    def fmt(v):
-        return "n/a" if v is None else f"{v:.4g}"
-
-    for name, m in (summary.get("metrics") or {}).items():
-        print(f"  {name}: mean {fmt(m['mean'])}, p95 {fmt(m['p95'])}, max {fmt(m['max'])}")
-    if summary["failed_total"] and summary.get("path"):
-        print("  failed runs and their errors: the 'status' and 'error' columns of the table")
-    if summary.get("path"):
-        print(f"  results: {summary['path']}")
+        print_json(summary.to_dict())
+    else:
+        _print_campaign(args.scenario, summary)
     return 0
+
+
+def _print_campaign(scenario: str, s) -> None:
+    """A ``CampaignSummary`` as text: counts, then a table of the metrics (one run's values
+    with ``--only``; mean / p95 / max over the successful runs otherwise)."""
+    def fmt(v):
+        return "n/a" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    if s.row is not None:
+        r = s.row
+        print(f"campaign {scenario}: run {r['index']} of {s.runs} alone (seed {r['seed']}): "
+              f"{r['status']}" + (f", {r['error']}" if r["status"] != "ok" else ""))
+        names = [k for k in r if k.startswith("param.")] + list(s.metrics)
+        width = max(map(len, names), default=0)
+        for name in names:
+            print(f"  {name:<{width}}  {fmt(r[name])}")
+    else:
+        print(f"campaign {scenario}: {s.rows} of {s.runs} runs in the table "
+              f"({s.ran} ran now, {s.failed_total} failed), {s.runs_per_s:.2f} runs/s")
+        if s.metrics:
+            head = f"over {s.rows - s.failed_total} successful runs"
+            width = max(len(head), *map(len, s.metrics))
+            print(f"  {head:<{width}}  {'mean':>9}  {'p95':>9}  {'max':>9}")
+            for name, m in s.metrics.items():
+                print(f"  {name:<{width}}  {fmt(m['mean']):>9}  {fmt(m['p95']):>9}  "
+                      f"{fmt(m['max']):>9}")
+        if s.failed_total and s.path:
+            print("  failed runs and their errors: the 'status' and 'error' columns of the table")
+    if s.path:
+        print(f"  results: {s.path}")
 
 
 def cmd_reproduce(args) -> int:

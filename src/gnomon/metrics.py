@@ -13,15 +13,36 @@
 All inputs have shape ``(N, 4)`` (or ``(..., 4)``); outputs are radians. A row
 with a NaN in either input (e.g. truth lost by the motion capture) gives NaN
 there; ``rms`` then needs a mask that excludes it.
+
+Scores of a whole estimate (degrees), built on the above; each is the one place its
+numbers are computed:
+
+* ``score``: a summary over a mask (``gnomon estimate``): BROAD split, per-axis, max.
+* ``score_run``: the metrics row of a Monte Carlo run (``gnomon campaign``): RMS, max
+  and mean after a convergence window, sunlit/eclipse and BROAD's split when they apply.
+* ``score_broad``: the BROAD benchmark's per-trial RMSE (``gnomon benchmark broad``).
+
+``score_run`` takes the RMS of the error in degrees, ``score``/``score_broad`` convert
+the RMS in radians to degrees (``rms_deg``); the two differ in the last digit only, and
+each keeps the numbers it has always published.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+from gnomon.errors import InputError
 from gnomon.rotation import error_angle, euler_from_quat, quat_conj, quat_mul
 
-__all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg", "score"]
+if TYPE_CHECKING:
+    from gnomon.recording import Recording
+
+__all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg", "score",
+           "score_run", "score_broad"]
+
+_BROAD_KEYS = ("total", "heading", "inclination")
 
 
 def _pair(q_true, q_est):
@@ -108,3 +129,62 @@ def score(q_true, q_est, mask=None) -> dict:
     out["max_deg"] = float(np.degrees(broad["total"].max())) if broad["total"].size else np.nan
     out["samples"] = int(m.sum())
     return out
+
+
+def score_run(rec: Recording, q_est, settle_s: float = 0.0) -> dict[str, float]:
+    """The metrics of one campaign run: errors (deg) of ``q_est`` against ``rec.q_true``.
+
+    ``rec``: a recording with ``t`` (N,) s and ``q_true`` (N, 4); ``q_est``: (N, 4), same
+    frames. Samples count from ``settle_s`` (s) after ``rec.t[0]`` and where the error is
+    finite. Keys (degrees; NaN when no sample qualifies):
+
+    * ``rms_deg``, ``max_deg``, ``mean_deg``: of the total error angle;
+    * with a vertical reference axis (``rec.frames["reference"]`` ENU or NWU) BROAD's split
+      ``heading_rms_deg``, ``inclination_rms_deg`` (a tilt-only filter is judged by the
+      latter; NaN if the split is undefined at a sample, an error of exactly 180°);
+    * with a sun sensor (``rec.sun_valid`` (N,) bool): ``sunlit_rms_deg``,
+      ``eclipse_rms_deg``, ``eclipse_max_deg``.
+
+    The RMS is taken of the error in degrees (the published campaign columns).
+    """
+    err = np.degrees(error_angle_rad(rec.q_true, q_est))
+    m = ((rec.t - rec.t[0]) >= settle_s) & np.isfinite(err)
+    out = {"rms_deg": rms(err, m), "max_deg": _max(err[m]), "mean_deg": _mean(err[m])}
+    if rec.frames.get("reference") in ("ENU", "NWU"):
+        parts = broad_errors_rad(rec.q_true, q_est)
+        out.update(heading_rms_deg=_rms_or_nan(np.degrees(parts["heading"]), m),
+                   inclination_rms_deg=_rms_or_nan(np.degrees(parts["inclination"]), m))
+    if rec.sun_valid is not None:
+        sun = m & rec.sun_valid
+        ecl = m & ~rec.sun_valid
+        out.update(sunlit_rms_deg=rms(err, sun), eclipse_rms_deg=rms(err, ecl),
+                   eclipse_max_deg=_max(err[ecl]))
+    return out
+
+
+def score_broad(rec: Recording, q_est) -> dict[str, float]:
+    """BROAD's RMSE (deg) of ``q_est`` (N, 4) on ``rec`` over ``rec.score_mask``.
+
+    Keys ``total_deg``, ``heading_deg``, ``inclination_deg`` (``broad_errors_rad``; the
+    reference frame's z axis vertical). Raises ``InputError`` if no sample is scored.
+    """
+    m = rec.score_mask
+    if not m.any():
+        raise InputError("no sample with movement and a valid truth to score",
+                         file=rec.source or None, field="movement")
+    e = broad_errors_rad(rec.q_true[m], np.asarray(q_est)[m])
+    return {f"{k}_deg": rms_deg(e[k]) for k in _BROAD_KEYS}
+
+
+def _rms_or_nan(x, mask) -> float:
+    """``rms(x, mask)``, NaN instead of an error when a selected value is not finite."""
+    sel = x[mask]
+    return rms(sel) if np.all(np.isfinite(sel)) else float("nan")
+
+
+def _max(x) -> float:
+    return float(np.max(x)) if x.size else float("nan")
+
+
+def _mean(x) -> float:
+    return float(np.mean(x)) if x.size else float("nan")

@@ -33,8 +33,9 @@ import tempfile
 
 import numpy as np
 
-from gnomon.campaign import run_campaign, run_seed, score_estimate
+from gnomon.campaign import Task, accepts_filter_key, run_campaign, run_seed
 from gnomon.errors import InputError
+from gnomon.metrics import score_run
 from gnomon.uncertainty import DEFAULT_MODEL, MODELS, inject
 
 __all__ = ["run", "case_task", "SCENARIO", "SETTLE_S"]
@@ -76,13 +77,13 @@ def _run_case(scenario, params: dict, seed: int, filters, keep_series=False):
         fp = {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith(f"filter.{name}.")}
         f = registry.create(name, fp)
         est = f.run(rec, inertia=J) if name == "ekf-spacecraft" else f.run(rec)
-        out.update({f"{name}.{k}": v for k, v in score_estimate(rec, est.q, SETTLE_S).items()})
+        out.update({f"{name}.{k}": v for k, v in score_run(rec, est.q, SETTLE_S).items()})
         series[name] = est
     out.update(_geometry(rec))
     return (out, rec, series) if keep_series else out
 
 
-def case_task(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) -> dict:
+def _case(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) -> dict:
     """Campaign task: simulate with one uncertainty source injected, run ``filters``, score.
 
     ``params``: ``uncertainty.source`` ("none", "inertia", "field_model", "sun_sensor"),
@@ -93,12 +94,11 @@ def case_task(scenario, params: dict, seed: int, filters=("ekf-spacecraft",)) ->
 
 
 def _accepts(key: str) -> bool:
-    from gnomon.campaign import _accepts_filter_key
-
-    return key in _TASK_KEYS or _accepts_filter_key(key)
+    return key in _TASK_KEYS or accepts_filter_key(key)
 
 
-case_task.accepts = _accepts  # type: ignore[attr-defined]
+#: the campaign task of the experiments (``"gnomon.reproduce.p001:case_task"``): see ``_case``
+case_task = Task(_case, accepts=_accepts, name="gnomon.reproduce.p001:case_task")
 
 
 def _campaign(name, vary, seeds, filters, base, root, **kw):

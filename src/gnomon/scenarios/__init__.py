@@ -23,7 +23,7 @@ from typing import Any
 import yaml
 
 from gnomon.errors import InputError
-from gnomon.scenarios.schema import KINDS, flatten, get_dotted, schema_of, set_dotted, validate
+from gnomon.scenarios.schema import KINDS, get_dotted, schema_of, set_dotted, validate
 
 __all__ = ["Scenario", "load_scenario", "list_presets", "simulate", "describe"]
 
@@ -78,10 +78,6 @@ class Scenario:
         """The full scenario (every key, defaults filled in) as YAML text that
         :func:`load_scenario` reads back to the same scenario (save it beside results)."""
         return yaml.safe_dump(self.config, sort_keys=False, default_flow_style=None)
-
-    def flat(self) -> dict:
-        """``{dotted key: value}`` of every setting (for saving beside results)."""
-        return flatten(self.config)
 
 
 def list_presets() -> list[str]:

@@ -1,0 +1,150 @@
+"""The default campaign task: simulate the scenario, run filters on it, score them.
+
+:data:`simulate_and_score` (named ``"gnomon.campaign:simulate_and_score"``) is a
+:class:`~gnomon.campaign.task.Task`: its run form simulates one run, its batch form
+(:func:`simulate_and_score_batch`) a chunk, handing the runs that share a filter, its
+parameters and their time stamps to the filter's ``Estimator.run_many`` in one call
+(results equal the one-run ones to the kernels' 1e-12). Its own ``--vary`` keys are
+``filter.NAME.PARAM`` (a filter's tuning value). Scores: :func:`gnomon.metrics.score_run`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from gnomon.campaign.task import Task
+from gnomon.errors import InputError
+from gnomon.metrics import score_run
+
+__all__ = ["simulate_and_score", "simulate_and_score_batch", "accepts_filter_key",
+           "DEFAULT_TASK"]
+
+DEFAULT_TASK = "gnomon.campaign:simulate_and_score"
+
+
+def accepts_filter_key(key: str) -> bool:
+    """Whether ``key`` is ``filter.NAME.PARAM`` of a registered filter. Raises
+    ``InputError`` for an unknown filter or an unknown parameter of a known one."""
+    from gnomon.estimators import registry
+
+    parts = key.split(".")
+    if len(parts) != 3 or parts[0] != "filter":
+        return False
+    cls = registry.get(parts[1])
+    names = {f.name for f in dataclasses.fields(cls.Params)}
+    if parts[2] not in names:
+        raise InputError(f"unknown parameter of filter {parts[1]!r}; known: "
+                         f"{', '.join(sorted(names))}", field=key)
+    return True
+
+
+def _simulate_and_score_one(scenario, params: dict, seed: int,
+                            filters: Sequence[str] | None = None,
+                            settle_s: float | None = None) -> dict:
+    """The default task, one run: simulate ``scenario`` with ``seed``, run ``filters``,
+    score them.
+
+    ``params`` may hold ``filter.NAME.PARAM`` values. ``filters`` None: every registered
+    filter whose inputs the recording has (sorted by name). Metrics per filter ``F``
+    (:func:`gnomon.metrics.score_run`; degrees, samples after ``settle_s`` s; None: the
+    scenario's ``settle_s``, else 300 s): ``F.rms_deg``, ``F.max_deg``, ``F.mean_deg``;
+    with a sun sensor also ``F.sunlit_rms_deg``, ``F.eclipse_rms_deg``,
+    ``F.eclipse_max_deg`` (NaN when there is no such sample) and ``eclipse_fraction`` of
+    the recording; on a vertical reference axis ``F.heading_rms_deg``,
+    ``F.inclination_rms_deg``. Raises what failed the run.
+    """
+    result = simulate_and_score_batch([scenario], [params], [seed], filters, settle_s)[0]
+    if isinstance(result, BaseException):
+        raise result
+    return result
+
+
+def _filters_for(rec, filters):
+    from gnomon.estimators import registry
+
+    if filters is not None:
+        return list(filters)
+    return [name for name in registry.names()
+            if all((rec.extra.get(k[6:]) is not None) if k.startswith("extra.")
+                   else getattr(rec, k, None) is not None for k in registry.get(name).needs)]
+
+
+def _filter_params(params: dict, name: str) -> dict:
+    return {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith(f"filter.{name}.")}
+
+
+def _settle_s(scenario, settle_s):
+    if settle_s is not None:
+        return settle_s
+    return float(getattr(scenario, "config", {}).get("settle_s", 300.0))
+
+
+def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
+                             settle_s: float | None = None) -> list:
+    """The default task for the runs of a chunk, as one call (its batch form).
+
+    ``scenarios``, ``params_list``, ``seeds``: one per run, as the run form takes them.
+    Each run is simulated alone. Filters with a batch-over-runs kernel (those that
+    override ``Estimator.run_many``) get the runs that share the filter, its parameters
+    and their time stamps together, in one call; the others run as each recording is
+    made (which is then dropped unless a batch still needs it). Returns one metrics
+    dict per run, or the exception that failed that run."""
+    from gnomon.estimators import registry
+    from gnomon.estimators.base import Estimator
+    from gnomon.scenarios import simulate
+
+    def batched(name):
+        return registry.get(name).run_many.__func__ is not Estimator.run_many.__func__
+
+    def score(k, name, q):
+        if isinstance(results[k], BaseException):
+            return
+        if isinstance(q, BaseException):
+            results[k] = q
+            return
+        scores = score_run(recs[k], q, _settle_s(scenarios[k], settle_s))
+        results[k].update({f"{name}.{m}": v for m, v in scores.items()})
+
+    results: list = []
+    recs: dict = {}
+    groups: dict = {}
+    for k, (scenario, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+        results.append({})
+        try:
+            recs[k] = rec = simulate(scenario, rng_seed=seed)
+            if rec.sun_valid is not None:
+                results[k]["eclipse_fraction"] = float(np.mean(~rec.sun_valid))
+            for name in _filters_for(rec, filters):
+                fp = _filter_params(params_list[k], name)
+                if batched(name):
+                    key = (name, repr(sorted(fp.items())), rec.t.size, rec.t[0], rec.t[-1])
+                    groups.setdefault(key, (name, fp, []))[2].append(k)
+                else:
+                    score(k, name, registry.create(name, fp).run(rec).q)
+        except Exception as err:  # noqa: BLE001 - this run fails, the others go on
+            results[k] = err
+        if not any(k in ks for _, _, ks in groups.values()):
+            recs.pop(k, None)
+    for name, fp, ks in groups.values():
+        try:
+            cls = registry.get(name)
+            qs = cls.run_many([recs[k] for k in ks], cls.Params.from_dict(fp))
+        except Exception:  # noqa: BLE001 - then one run at a time, to fail only the bad one
+            qs = []
+            for k in ks:
+                try:
+                    qs.append(registry.create(name, fp).run(recs[k]).q)
+                except Exception as err:  # noqa: BLE001
+                    qs.append(err)
+        for k, q in zip(ks, qs, strict=True):
+            score(k, name, q)
+    return results
+
+
+#: The default task (``"gnomon.campaign:simulate_and_score"``); call it as the run form:
+#: ``simulate_and_score(scenario, params, seed, filters=None, settle_s=None) -> dict``.
+simulate_and_score = Task(_simulate_and_score_one, batch=simulate_and_score_batch,
+                          accepts=accepts_filter_key, name=DEFAULT_TASK)
