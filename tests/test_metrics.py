@@ -113,3 +113,24 @@ def test_score_broad_over_the_score_mask():
     assert s == {f"{k}_deg": metrics.rms_deg(e[k]) for k in ("total", "heading", "inclination")}
     with pytest.raises(InputError, match="no sample"):
         metrics.score_broad(dataclasses.replace(rec, mask=np.zeros(len(rec), bool)), q_est)
+
+
+def test_compare_removes_a_constant_heading_offset_and_reports_it():
+    from gnomon.metrics import compare, heading_offset_rad
+    from gnomon.rotation import quat_from_euler, quat_from_rotvec, quat_mul
+
+    rng = np.random.default_rng(21)
+    q = quat_from_euler(rng.uniform(-1.0, 1.0, (500, 3)))
+    decl = np.radians(7.5)  # e.g. true vs magnetic north
+    tilt = quat_from_rotvec(np.column_stack([rng.normal(0, 0.01, 500), np.zeros(500),
+                                             np.zeros(500)]))  # 0.57 deg rms about x
+    est = quat_mul(quat_from_rotvec([0.0, 0.0, decl]), quat_mul(q, tilt))
+    assert heading_offset_rad(q, est) == pytest.approx(decl, abs=2e-3)
+    with_match = compare(q, est)
+    assert with_match["heading_offset_deg"] == pytest.approx(7.5, abs=0.1)
+    assert with_match["total_deg"] < 1.0 and with_match["samples"] == 500
+    without = compare(q, est, match_heading=False)
+    assert without["heading_deg"] == pytest.approx(7.5, abs=0.2)
+    ref = q.copy()
+    ref[:100] = np.nan  # rows where the device has no estimate are not scored
+    assert compare(ref, est)["samples"] == 400

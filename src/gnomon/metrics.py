@@ -21,6 +21,8 @@ numbers are computed:
 * ``score_run``: the metrics row of a Monte Carlo run (``gnomon campaign``): RMS, max
   and mean after a convergence window, sunlit/eclipse and BROAD's split when they apply.
 * ``score_broad``: the BROAD benchmark's per-trial RMSE (``gnomon benchmark broad``).
+* ``compare``: BROAD's metric between two estimates (gnomon's and the device's own,
+  ``gnomon estimate --compare onboard``), with their constant heading offset removed.
 
 ``score_run`` takes the RMS of the error in degrees, ``score``/``score_broad`` convert
 the RMS in radians to degrees (``rms_deg``); the two differ in the last digit only, and
@@ -40,7 +42,7 @@ if TYPE_CHECKING:
     from gnomon.recording import Recording
 
 __all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg", "score",
-           "score_run", "score_broad"]
+           "score_run", "score_broad", "heading_offset_rad", "compare"]
 
 _BROAD_KEYS = ("total", "heading", "inclination")
 
@@ -188,3 +190,42 @@ def _max(x) -> float:
 
 def _mean(x) -> float:
     return float(np.mean(x)) if x.size else float("nan")
+
+
+def heading_offset_rad(q_ref, q_est, mask=None) -> float:
+    """The constant rotation ``ψ`` (rad) about the reference frame's vertical that best
+    turns ``q_ref`` onto ``q_est``: the circular mean over ``mask`` (and finite rows) of
+    the heading part ``2·atan2(z, w)`` of ``q_est ⊗ conj(q_ref)``. Two estimates that
+    refer heading to different norths (magnetic vs true, a declination) differ by it."""
+    qr, qe, bad = _pair(q_ref, q_est)
+    m = ~bad if mask is None else ~bad & np.asarray(mask, dtype=bool)
+    if not m.any():
+        return float("nan")
+    e = quat_mul(qe[m], quat_conj(qr[m]))
+    psi = 2.0 * np.arctan2(e[:, 3] * np.sign(e[:, 0] + (e[:, 0] == 0)), np.abs(e[:, 0]))
+    return float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi))))
+
+
+def compare(q_ref, q_est, mask=None, match_heading: bool = True) -> dict:
+    """BROAD's RMS metric (deg) between two estimates, e.g. gnomon's and a device's own
+    (``Recording.q_onboard``), over the rows where both exist (and ``mask``).
+
+    With ``match_heading`` the constant heading offset between them (``heading_offset_rad``)
+    is removed from ``q_ref`` first and reported (``heading_offset_deg``): an autopilot
+    that refers heading to true north and a filter that refers it to magnetic north
+    then compare by their attitude, not by the local declination. Keys: ``total_deg``,
+    ``heading_deg``, ``inclination_deg``, ``samples``, ``heading_offset_deg``,
+    ``heading_matched``.
+    """
+    from gnomon.rotation import quat_from_rotvec
+
+    qr, qe, bad = _pair(q_ref, q_est)  # rows without both: identity, not scored
+    m = ~bad if mask is None else ~bad & np.asarray(mask, dtype=bool)
+    psi = heading_offset_rad(qr, qe, m) if match_heading else 0.0
+    if match_heading and np.isfinite(psi):
+        qr = quat_mul(quat_from_rotvec(np.array([0.0, 0.0, psi])), qr)
+    e = broad_errors_rad(qr[m], qe[m])
+    out = {f"{k}_deg": rms_deg(e[k]) for k in _BROAD_KEYS}
+    out.update(samples=int(m.sum()), heading_offset_deg=float(np.degrees(psi)),
+               heading_matched=bool(match_heading))
+    return out
