@@ -198,7 +198,8 @@ def _lowpass_state(shape) -> np.dtype:
     """State of a ``LowPass`` of values of ``shape``: ``z0``, ``z1`` (the direct form II
     transposed; during the start-up ``z0`` holds the running sum) and ``n``, the number of
     samples in the running mean (-1 once the filter runs)."""
-    return np.dtype([("z0", np.float64, shape), ("z1", np.float64, shape), ("n", np.int64)])
+    return np.dtype([("z0", np.float64, shape), ("z1", np.float64, shape), ("n", np.int64)],
+                    align=True)
 
 
 LOWPASS_2 = _lowpass_state((2,))
@@ -215,9 +216,11 @@ HARD_IRON = np.dtype([
     ("o", np.float64, (3,)),  # the offset in use (body, magnetometer unit; 0: none)
     ("block_m", np.float64, (3,)),  # Σ m, Σ |m|² over the current block of mag_every
     ("block_mm", np.float64),
-])
+], align=True)
 
-#: The filter's evolving state (one record; see the module docstring for the frames).
+#: The filter's evolving state (one record; see the module docstring for the frames). The
+#: dtypes are aligned (``align=True``: padding after the booleans), so that numba reads every
+#: float at its natural alignment.
 STATE = np.dtype([
     ("q_gyr", np.float64, (4,)),  # q_Ib: strapdown of the bias-corrected gyro
     ("q_acc", np.float64, (4,)),  # q_6I: inclination correction
@@ -256,7 +259,7 @@ STATE = np.dtype([
     ("p_head", np.float64),  # heading variance (units: see Coefficients)
     ("rot2", np.float64),  # ∫|ω - b|² dt since the last heading update, rad²/s
     ("hard_iron", HARD_IRON),
-])
+], align=True)
 
 
 def new_state(p) -> np.ndarray:
