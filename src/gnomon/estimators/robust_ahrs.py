@@ -69,9 +69,10 @@ n = ENU. The estimate is
 
 Filter coefficients use the nominal sample time ``ts`` (the median of the first
 100 regular intervals of the first recording run, or the first positive ``dt`` of
-``update``, or ``start(ts_s)``); the gyro
-is integrated over the actual intervals. Intervals longer than ``max_dt_s`` are
-gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
+``update``, or ``start(ts_s)``); the gyro is integrated over the actual intervals.
+Intervals longer than ``max_dt_s`` are gaps (gyro only). Streaming
+``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)``: ``None`` (or a zero
+vector, as in a recording) is no new sample of that sensor and skips its phase.
 
 Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
 (bool), ``acc_correction_rad_s`` (inclination correction rate: sine of the
@@ -79,8 +80,16 @@ correction angle / ts), ``hard_iron`` (N, 3) offset in use (magnetometer unit),
 ``mag_gain``
 (heading gain used, 0 while rejected), ``acc_skipped``, ``mag_skipped``, ``gap``.
 
-The readable per-sample ``update`` is the reference; ``run`` uses the numba
-kernel ``gnomon.kernels.robust_ahrs`` (tested sample by sample against it).
+Design: the coefficients (``Coefficients``, a named tuple from
+``coefficients(params, ts)``) and the state (one record of the structured dtype
+``STATE``, fresh from ``new_state(params)``; low-pass filters and hard-iron sums are
+nested records) are defined in the kernel module ``gnomon.kernels.robust_ahrs``, which
+knows nothing of this one. The filter holds the state as ``self.state``, an array of one
+record (``record`` is its attribute view; ``get_state``/``set_state`` save and restore
+it with ``ts`` and ``t_last``). The readable per-sample ``update`` is the reference: it
+runs the kernel's phases (rest detection, strapdown, inclination, bias Kalman filter,
+magnetometer: hard iron, disturbance, heading) written with numpy, below, on the same
+record; ``run`` uses the compiled kernel (tested sample by sample against it).
 """
 
 from __future__ import annotations
