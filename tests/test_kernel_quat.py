@@ -136,3 +136,22 @@ def test_linalg_toolbox_agrees_with_numpy():
         kl.symmetrise(S)
         np.testing.assert_allclose(S, 0.5 * (P + P.T), atol=0)
     assert kl.clip(3.0, 2.0) == 2.0 and kl.clip(-3.0, 2.0) == -2.0 and kl.clip(1.5, 2.0) == 1.5
+
+
+def test_mat3_tuple_helpers_agree_with_numpy():
+    from gnomon.kernels import linalg as kl
+
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        a, b = rng.normal(size=(2, 3, 3))
+        v = rng.normal(size=3)
+        ta, tb = tuple(a.ravel()), tuple(b.ravel())
+        np.testing.assert_array_equal(kl.mat3_load(a), ta)
+        out = np.empty((3, 3))
+        kl.mat3_store(out, ta)
+        np.testing.assert_array_equal(out, a)
+        np.testing.assert_allclose(kl.mat3_vec(ta, *v), a @ v, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(kl.mat3_tvec(ta, *v), a.T @ v, rtol=1e-14, atol=1e-14)
+        for f, ref in ((kl.mat3_mul, a @ b), (kl.mat3_mul_bt, a @ b.T), (kl.mat3_tmul, a.T @ b)):
+            np.testing.assert_allclose(np.reshape(f(ta, tb), (3, 3)), ref, rtol=1e-14,
+                                       atol=1e-14)

@@ -5,7 +5,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gnomon.estimators import robust_ahrs
 from gnomon.estimators.robust_ahrs import RobustAHRS, RobustAHRSParams, butter2
 from gnomon.metrics import broad_errors_rad
 from gnomon.recording import Recording
@@ -51,10 +50,55 @@ def test_butterworth_matches_scipy():
     np.testing.assert_allclose(butter2(tau, ts), [*b, *a[1:]], rtol=1e-10)
 
 
+def _twin_run(params, rec, ts):
+    """The readable ``update`` sample by sample: ``q`` (N, 4), the per-sample signals of
+    ``run`` and the filter (its final state)."""
+    ref = RobustAHRS(params)
+    ref.start(ts)  # the same nominal sample time as the kernel run
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    q, sig = [], {k: [] for k in ("bias_rad_s", "rest", "mag_disturbed", "acc_correction_rad_s",
+                                 "mag_gain", "hard_iron", "acc_skipped", "mag_skipped", "gap")}
+    for i in range(len(rec)):
+        q.append(ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i]))
+        s = ref.record
+        for key, value in (("bias_rad_s", ref.bias), ("rest", s.rest),
+                           ("mag_disturbed", s.mag_disturbed), ("acc_correction_rad_s", s.acc_rate),
+                           ("mag_gain", s.k_mag_used), ("hard_iron", s.hard_iron.o.copy()),
+                           *ref.flags.items()):
+            sig[key].append(value)
+    return np.array(q), {k: np.array(v) for k, v in sig.items()}, ref
+
+
+def assert_same_state(a, b, rtol=1e-11, atol=1e-13):
+    """Every field (and sub-field) of two ``STATE`` arrays, to rounding."""
+    for name in a.dtype.names:
+        if a.dtype[name].names:
+            assert_same_state(a[name], b[name], rtol, atol)
+        else:
+            np.testing.assert_allclose(a[name], b[name], rtol=rtol, atol=atol, err_msg=name)
+
+
+def assert_kernel_equals_twin(params, rec):
+    run = RobustAHRS(params)
+    est = run.run(rec)
+    q_ref, sig, ref = _twin_run(params, rec, run.ts)
+    # the same arithmetic up to rounding (numpy's matrix products and solves vs tuples):
+    # measured 3e-14 in q, 5e-15 rad/s in the bias
+    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(est.signals["bias_rad_s"], sig["bias_rad_s"], rtol=0, atol=1e-13)
+    for key in ("acc_correction_rad_s", "mag_gain", "hard_iron"):
+        np.testing.assert_allclose(est.signals[key], sig[key], rtol=1e-11, atol=1e-12, err_msg=key)
+    for key in ("rest", "mag_disturbed", "acc_skipped", "mag_skipped", "gap"):
+        np.testing.assert_array_equal(est.signals[key], sig[key], err_msg=key)
+    assert_same_state(run.state, ref.state)
+    return est, run
+
+
 @pytest.mark.parametrize("overrides", [
     {}, {"mag_bias_gain_per_s": 0.003, "heading_kf": False},
     {"hard_iron_tau_s": 5.0, "mag_soft_norm": 0.05, "mag_soft_dip_deg": 5.0, "mag_every": 1,
-     "bias_every": 1}])
+     "bias_every": 1},
+    {"mag_every": 3, "bias_every": 5, "rest_bias": False, "mag_rejection": False}])
 def test_kernel_equals_reference_sample_by_sample(overrides):
     n = 2500
     # a magnetic disturbance in the middle, a rest phase at the start (gyro rate ~0)
@@ -62,26 +106,68 @@ def test_kernel_equals_reference_sample_by_sample(overrides):
     h[1200:1500] += [30.0, 0.0, 10.0]
     rec = wobble(n=n, bias=(0.01, -0.02, 0.015), mag_n=h, seed=3)
     rec.gyro[:400] = np.array([0.01, -0.02, 0.015]) + 0.001 * np.sin(np.arange(400))[:, None]
-    rec.gyro[:400] += 0.0
     rec.accel[:400] = quat_rotate(quat_conj(rec.q_true[0]), [0, 0, G])
     rec.mag[:400] = quat_rotate(quat_conj(rec.q_true[0]), FIELD)
     rec.accel[700:705] = 0.0
     rec.mag[900:905] = 0.0
+    t = rec.t.copy()
+    t[2000:] += 2.0  # a gap: gyro only
+    rec = Recording(t=t, gyro=rec.gyro, accel=rec.accel, mag=rec.mag, mag_unit="uT")
     params = RobustAHRSParams(tau_mag_s=3.0, mag_new_first_s=1.0, rest_min_s=0.5,
                               **overrides)
-    run = RobustAHRS(params)
-    est = run.run(rec)
-    ref = RobustAHRS(params)
-    dt = np.diff(rec.t, prepend=rec.t[0])
-    ref.start(run.ts)  # the same nominal sample time (median interval, 0.01 + 1e-17)
-    q_ref = np.array([ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i])
-                      for i in range(n)])
-    # same arithmetic up to rounding (numpy's matrix products vs unrolled loops): 2.5e-12
-    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-11)
-    np.testing.assert_allclose(est.signals["bias_rad_s"][-1], ref.bias, rtol=0, atol=1e-12)
+    est, _ = assert_kernel_equals_twin(params, rec)
     # the synthetic run exercised the mechanisms the comparison is about
-    assert est.signals["rest"][:400].any() and est.signals["mag_disturbed"][1200:1500].any()
+    if params.rest_bias:
+        assert est.signals["rest"][:400].any()
+    if params.mag_rejection:
+        assert est.signals["mag_disturbed"][1200:1500].any()
     assert est.signals["acc_skipped"][700:705].all() and est.signals["mag_skipped"][900:905].all()
+    assert est.signals["gap"][2000] and est.signals["gap"].sum() == 1
+
+
+def test_streaming_update_none_is_no_sample_and_state_resumes():
+    rec = wobble(n=800, seed=8)
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    a, b = RobustAHRS(), RobustAHRS()
+    a.start(0.01)
+    b.start(0.01)
+    for i in range(400):
+        acc, mag = rec.accel[i], rec.mag[i]
+        a.update(dt[i], rec.gyro[i], None if i % 7 == 3 else acc, None if i % 5 == 1 else mag)
+        b.update(dt[i], rec.gyro[i], np.zeros(3) if i % 7 == 3 else acc,
+                 [0.0, 0.0, 0.0] if i % 5 == 1 else mag)
+        assert a.flags == b.flags
+        assert a.flags["acc_skipped"] == (i % 7 == 3) and a.flags["mag_skipped"] == (i % 5 == 1)
+    assert_same_state(a.state, b.state, rtol=0, atol=0)
+    # a saved state continues exactly, in the readable update and in the kernel
+    saved = a.get_state()
+    c = RobustAHRS()
+    c.set_state(saved)
+    for i in range(400, 450):
+        np.testing.assert_array_equal(c.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i]),
+                                      a.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i]))
+    whole = RobustAHRS().run(rec)
+    first = RobustAHRS()
+    first.run(rec.slice(0, 300))
+    resumed = RobustAHRS()
+    resumed.set_state(first.get_state())
+    np.testing.assert_array_equal(resumed.run(rec.slice(300, 800)).q, whole.q[300:])
+    assert (RobustAHRS.kind, RobustAHRS.reference_frame) == ("imu", "ENU")
+    from gnomon.errors import InputError
+
+    with pytest.raises(InputError, match="gyro_rad_s"):
+        RobustAHRS().update(0.01, None, rec.accel[0], rec.mag[0])
+
+
+def test_kernel_module_does_not_import_the_estimators():
+    import subprocess
+    import sys
+
+    code = ("import sys, gnomon.kernels.robust_ahrs as k; "
+            "print(any(m.startswith('gnomon.estimators') for m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
 
 
 def test_rest_bias_converges():
@@ -236,15 +322,15 @@ def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
     # nearly unregularised least squares recovers the offset; the default prior shrinks it
     sharp = RobustAHRS(hard_iron_tau_s=5.0, hard_iron_reg=0.002)
     sharp.run(rec.slice(0, 5500))  # 25 s into the attached-magnet stretch
-    np.testing.assert_allclose(sharp.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], offset,
+    np.testing.assert_allclose(sharp.record.hard_iron.o, offset,
                                atol=1.0)  # uT
     p = RobustAHRSParams(hard_iron_tau_s=5.0)
     f = RobustAHRS(p)
     f.run(rec.slice(0, 5500))
-    o = f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3]
+    o = f.record.hard_iron.o
     assert np.linalg.norm(o - offset) < 0.15 * np.linalg.norm(offset)
     f.run(rec.slice(5500, 9000))  # magnet removed: the offset is dropped again
-    np.testing.assert_allclose(f.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3], 0.0, atol=1e-12)
+    np.testing.assert_allclose(f.record.hard_iron.o, 0.0, atol=1e-12)
     # with the offset removed the field is accepted again (not flagged) and the heading stays
     # close; without it the whole stretch is rejected
     est = {tau: RobustAHRS(hard_iron_tau_s=tau).run(rec) for tau in (5.0, 0.0)}
@@ -261,18 +347,10 @@ def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
     rec2 = wobble(n=9000, mag_n=h, seed=7)
     f2 = RobustAHRS(p)
     f2.run(rec2)
-    assert not np.any(f2.s[robust_ahrs.S_HI_O:robust_ahrs.S_HI_O + 3])
+    assert not np.any(f2.record.hard_iron.o)
 
 
 def test_hard_iron_kernel_equals_reference():
     rec = attached_magnet(n=4000, on=slice(1000, 3000))
-    params = RobustAHRSParams(hard_iron_tau_s=3.0)
-    run = RobustAHRS(params)
-    est = run.run(rec)
-    ref = RobustAHRS(params)
-    ref.start(run.ts)
-    dt = np.diff(rec.t, prepend=rec.t[0])
-    q_ref = np.array([ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i])
-                      for i in range(len(rec))])
-    assert np.any(run.s[robust_ahrs.S_HI_W] > 0)
-    np.testing.assert_allclose(est.q, q_ref, rtol=0, atol=1e-10)
+    est, run = assert_kernel_equals_twin(RobustAHRSParams(hard_iron_tau_s=3.0), rec)
+    assert run.record.hard_iron.w > 0 and est.signals["hard_iron"][2000:3000].all()

@@ -69,9 +69,10 @@ n = ENU. The estimate is
 
 Filter coefficients use the nominal sample time ``ts`` (the median of the first
 100 regular intervals of the first recording run, or the first positive ``dt`` of
-``update``, or ``start(ts_s)``); the gyro
-is integrated over the actual intervals. Intervals longer than ``max_dt_s`` are
-gaps (gyro only). A zero accelerometer or magnetometer vector skips its update.
+``update``, or ``start(ts_s)``); the gyro is integrated over the actual intervals.
+Intervals longer than ``max_dt_s`` are gaps (gyro only). Streaming
+``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)``: ``None`` (or a zero
+vector, as in a recording) is no new sample of that sensor and skips its phase.
 
 Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
 (bool), ``acc_correction_rad_s`` (inclination correction rate: sine of the
@@ -79,8 +80,16 @@ correction angle / ts), ``hard_iron`` (N, 3) offset in use (magnetometer unit),
 ``mag_gain``
 (heading gain used, 0 while rejected), ``acc_skipped``, ``mag_skipped``, ``gap``.
 
-The readable per-sample ``update`` is the reference; ``run`` uses the numba
-kernel ``gnomon.kernels.robust_ahrs`` (tested sample by sample against it).
+Design: the coefficients (``Coefficients``, a named tuple from
+``coefficients(params, ts)``) and the state (one record of the structured dtype
+``STATE``, fresh from ``new_state(params)``; low-pass filters and hard-iron sums are
+nested records) are defined in the kernel module ``gnomon.kernels.robust_ahrs``, which
+knows nothing of this one. The filter holds the state as ``self.state``, an array of one
+record (``record`` is its attribute view; ``get_state``/``set_state`` save and restore
+it with ``ts`` and ``t_last``). The readable per-sample ``update`` is the reference: it
+runs the kernel's phases (rest detection, strapdown, inclination, bias Kalman filter,
+magnetometer: hard iron, disturbance, heading) written with numpy, below, on the same
+record; ``run`` uses the compiled kernel (tested sample by sample against it).
 """
 
 from __future__ import annotations
@@ -92,6 +101,15 @@ import numpy as np
 
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.kernels.robust_ahrs import (
+    ACC_SKIPPED,
+    GAP,
+    MAG_SKIPPED,
+    Coefficients,
+    butter2,
+    coefficients,
+    new_state,
+)
 from gnomon.recording import Recording
 from gnomon.rotation import dcm_from_quat, quat_from_rotvec, quat_mul
 
@@ -176,204 +194,260 @@ class RobustAHRSParams(Params):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
 
 
-# ---------------------------------------------------------------- state layout
-def _layout(spec):
-    out, off = {}, 0
-    for name, size in spec:
-        out[name] = off
-        off += size
-    return out, off
 
-
-_S, STATE_SIZE = _layout([
-    ("QG", 4), ("QA", 4), ("DELTA", 1), ("BIAS", 3), ("P", 9),
-    ("ALP", 7), ("RLP", 19), ("BLP", 5), ("RG", 7), ("RG_OUT", 3), ("RA", 7), ("MN", 5),
-    ("REST_T", 1), ("REST", 1), ("MAG_REF_NORM", 1), ("MAG_REF_DIP", 1),
-    ("MAG_UNDIST_T", 1), ("MAG_REJECT_T", 1), ("CAND_NORM", 1), ("CAND_DIP", 1),
-    ("CAND_T", 1), ("MAG_DIST", 1), ("K_MAG_INIT", 1), ("ACC_RATE", 1), ("K_MAG_USED", 1),
-    ("MAG_DIS", 1), ("P_HEAD", 1), ("ROT2", 1), ("BIAS_CNT", 1), ("MAG_CNT", 1), ("MSUM", 3),
-    ("HI_W", 1), ("HI_S", 9), ("HI_RM", 3), ("HI_M", 3), ("HI_O", 3), ("HI_MM", 1),
-    ("HI_BM", 3), ("HI_BMM", 1),
-    ("CD", 1), ("SD", 1),
-])
-S_QG, S_QA, S_DELTA, S_BIAS, S_P = _S["QG"], _S["QA"], _S["DELTA"], _S["BIAS"], _S["P"]
-S_ALP, S_RLP, S_BLP, S_RG, S_RG_OUT = _S["ALP"], _S["RLP"], _S["BLP"], _S["RG"], _S["RG_OUT"]
-S_RA, S_MN, S_REST_T, S_REST = _S["RA"], _S["MN"], _S["REST_T"], _S["REST"]
-S_MAG_REF_NORM, S_MAG_REF_DIP = _S["MAG_REF_NORM"], _S["MAG_REF_DIP"]
-S_MAG_UNDIST_T, S_MAG_REJECT_T = _S["MAG_UNDIST_T"], _S["MAG_REJECT_T"]
-S_CAND_NORM, S_CAND_DIP, S_CAND_T = _S["CAND_NORM"], _S["CAND_DIP"], _S["CAND_T"]
-S_MAG_DIST, S_K_MAG_INIT, S_ACC_RATE = _S["MAG_DIST"], _S["K_MAG_INIT"], _S["ACC_RATE"]
-S_K_MAG_USED, S_MAG_DIS, S_P_HEAD = _S["K_MAG_USED"], _S["MAG_DIS"], _S["P_HEAD"]
-
-_C, COEF_SIZE = _layout([
-    ("TS", 1), ("ACC_LP", 5), ("REST_LP", 5), ("MAG_CUR_LP", 5), ("K_MAG", 1),
-    ("K_MAG_REF", 1), ("BIAS_P0", 1), ("BIAS_V", 1), ("W_MOTION", 1), ("W_VERTICAL", 1),
-    ("W_REST", 1), ("BIAS_CLIP", 1), ("REST_TH_GYRO2", 1), ("REST_TH_ACC2", 1),
-    ("REST_MIN", 1), ("TAU_ACC", 1), ("TAU_REST", 1), ("TAU_MAG_CUR", 1), ("MAG_NORM_TH", 1),
-    ("MAG_DIP_TH", 1), ("MAG_NEW", 1), ("MAG_NEW_FIRST", 1), ("MAG_NEW_MIN_GYRO", 1),
-    ("MAG_MIN_UNDIST", 1), ("MAG_MAX_REJECT", 1), ("MAG_REJECT_FACTOR", 1), ("TAU_MAG", 1),
-    ("MAX_DT", 1), ("REST_BIAS", 1), ("MOTION_BIAS", 1), ("MAG_REJECT", 1),
-    ("K_MAG_BIAS", 1), ("HEADING_KF", 1), ("Q_HEAD", 1), ("Q_RATE", 1), ("R_HEAD", 1),
-    ("BIAS_LP", 5), ("BIAS_EVERY", 1), ("TS_BIAS", 1), ("MAG_EVERY", 1), ("TS_MAG", 1),
-    ("SOFT_N", 1), ("SOFT_D", 1), ("HI_LAMBDA", 1), ("HI_REG", 1), ("HI_GATE", 1),
-])
-C_TS, C_ACC_LP, C_REST_LP = _C["TS"], _C["ACC_LP"], _C["REST_LP"]
-C_MAG_CUR_LP = _C["MAG_CUR_LP"]
-C_K_MAG, C_K_MAG_REF = _C["K_MAG"], _C["K_MAG_REF"]
-C_BIAS_P0, C_BIAS_V = _C["BIAS_P0"], _C["BIAS_V"]
-C_W_MOTION, C_W_VERTICAL, C_W_REST = _C["W_MOTION"], _C["W_VERTICAL"], _C["W_REST"]
-C_BIAS_CLIP = _C["BIAS_CLIP"]
-C_REST_TH_GYRO2, C_REST_TH_ACC2 = _C["REST_TH_GYRO2"], _C["REST_TH_ACC2"]
-C_REST_MIN, C_TAU_ACC, C_TAU_REST, C_TAU_MAG_CUR = (_C["REST_MIN"], _C["TAU_ACC"], _C["TAU_REST"],
-                                                   _C["TAU_MAG_CUR"])
-C_MAG_NORM_TH, C_MAG_DIP_TH, C_MAG_NEW = _C["MAG_NORM_TH"], _C["MAG_DIP_TH"], _C["MAG_NEW"]
-C_MAG_NEW_FIRST, C_MAG_NEW_MIN_GYRO = _C["MAG_NEW_FIRST"], _C["MAG_NEW_MIN_GYRO"]
-C_MAG_MIN_UNDIST, C_MAG_MAX_REJECT = _C["MAG_MIN_UNDIST"], _C["MAG_MAX_REJECT"]
-C_MAG_REJECT_FACTOR, C_TAU_MAG, C_MAX_DT = _C["MAG_REJECT_FACTOR"], _C["TAU_MAG"], _C["MAX_DT"]
-C_REST_BIAS, C_MOTION_BIAS, C_MAG_REJECT = _C["REST_BIAS"], _C["MOTION_BIAS"], _C["MAG_REJECT"]
-C_K_MAG_BIAS, C_HEADING_KF, C_Q_HEAD = _C["K_MAG_BIAS"], _C["HEADING_KF"], _C["Q_HEAD"]
-C_Q_RATE, S_ROT2, S_BIAS_CNT = _C["Q_RATE"], _S["ROT2"], _S["BIAS_CNT"]
-C_R_HEAD = _C["R_HEAD"]
-C_BIAS_LP, C_BIAS_EVERY, C_TS_BIAS = _C["BIAS_LP"], _C["BIAS_EVERY"], _C["TS_BIAS"]
-C_MAG_EVERY, C_TS_MAG, S_MAG_CNT = _C["MAG_EVERY"], _C["TS_MAG"], _S["MAG_CNT"]
-S_CD, S_SD, S_MSUM = _S["CD"], _S["SD"], _S["MSUM"]
-C_SOFT_N, C_SOFT_D = _C["SOFT_N"], _C["SOFT_D"]
-S_HI_W, S_HI_S, S_HI_RM = _S["HI_W"], _S["HI_S"], _S["HI_RM"]
-S_HI_M, S_HI_O, S_HI_MM = _S["HI_M"], _S["HI_O"], _S["HI_MM"]
-S_HI_BM, S_HI_BMM = _S["HI_BM"], _S["HI_BMM"]
-C_HI_LAMBDA, C_HI_REG, C_HI_GATE = _C["HI_LAMBDA"], _C["HI_REG"], _C["HI_GATE"]
-
-
-def butter2(tau_s: float, ts_s: float) -> np.ndarray:
-    """Second-order Butterworth low-pass ``[b0, b1, b2, a1, a2]`` (bilinear transform).
-
-    Cutoff ``fc = √2 / (2π τ)`` (``τ`` is the time constant of the non-oscillating part
-    of the step response). A cutoff at or above 0.45·fs gives the identity filter.
-    """
-    fc = math.sqrt(2.0) / (2.0 * math.pi * tau_s) if tau_s > 0 else math.inf
-    if fc * ts_s >= 0.45:
-        return np.array([1.0, 0.0, 0.0, 0.0, 0.0])
-    c = math.tan(math.pi * fc * ts_s)
-    d = c * c + math.sqrt(2.0) * c + 1.0
-    b0 = c * c / d
-    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
-    return np.array([b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, a2])
-
-
-def _gain(tau_s: float, ts_s: float) -> float:
-    """First-order filter gain ``1 - exp(-ts/τ)`` (τ = 0: 1)."""
-    return 1.0 if tau_s <= 0 else 1.0 - math.exp(-ts_s / tau_s)
-
-
-def coefficients(p: RobustAHRSParams, ts_s: float) -> np.ndarray:
-    """The kernel's coefficient vector for parameters ``p`` and nominal sample time ``ts_s``."""
-    c = np.zeros(COEF_SIZE)
-    d2r = math.pi / 180.0
-    c[C_TS] = ts_s
-    c[C_ACC_LP:C_ACC_LP + 5] = butter2(p.tau_acc_s, ts_s)
-    c[C_REST_LP:C_REST_LP + 5] = butter2(p.rest_tau_s, ts_s)
-    # the heading filter runs every mag_every samples: its gains are for that interval
-    tsm = ts_s * p.mag_every
-    c[C_TS_MAG] = tsm
-    c[C_MAG_EVERY] = p.mag_every
-    c[C_HI_LAMBDA] = math.exp(-tsm / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0
-    c[C_HI_REG] = p.hard_iron_reg
-    c[C_HI_GATE] = p.hard_iron_gate
-    c[C_SOFT_N] = 1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0
-    c[C_SOFT_D] = 1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0
-    c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5] = butter2(p.mag_current_tau_s, tsm)
-    c[C_K_MAG] = _gain(p.tau_mag_s, tsm)
-    c[C_K_MAG_REF] = _gain(p.mag_ref_tau_s, tsm)
-    c[C_BIAS_P0] = (p.bias_sigma_init_deg_s * d2r) ** 2
-    # process noise: the variance grows by (0.1 deg/s)^2 in bias_forgetting_s
-    # the bias filter runs every bias_every samples: its own low-pass and noise per update
-    ts_b = ts_s * p.bias_every
-    c[C_TS_BIAS] = ts_b
-    c[C_BIAS_EVERY] = p.bias_every
-    c[C_BIAS_LP:C_BIAS_LP + 5] = butter2(p.tau_acc_s, ts_b)
-    c[C_BIAS_V] = (0.1 * d2r) ** 2 * ts_b / p.bias_forgetting_s
-    # measurement variance chosen so that the steady-state std is the stated sigma
-    pm = (p.bias_sigma_motion_deg_s * d2r) ** 2
-    c[C_W_MOTION] = pm * pm / c[C_BIAS_V] + pm
-    c[C_W_VERTICAL] = c[C_W_MOTION] / p.bias_vertical_forgetting
-    pr = (p.bias_sigma_rest_deg_s * d2r) ** 2
-    c[C_W_REST] = pr * pr / c[C_BIAS_V] + pr
-    c[C_BIAS_CLIP] = p.bias_clip_deg_s * d2r
-    c[C_REST_TH_GYRO2] = (p.rest_th_gyro_deg_s * d2r) ** 2
-    c[C_REST_TH_ACC2] = p.rest_th_acc_m_s2 ** 2
-    c[C_REST_MIN] = p.rest_min_s
-    c[C_TAU_ACC] = p.tau_acc_s
-    c[C_TAU_REST] = p.rest_tau_s
-    c[C_TAU_MAG_CUR] = p.mag_current_tau_s
-    c[C_MAG_NORM_TH] = p.mag_norm_th
-    c[C_MAG_DIP_TH] = p.mag_dip_th_deg * d2r
-    c[C_MAG_NEW] = p.mag_new_s
-    c[C_MAG_NEW_FIRST] = p.mag_new_first_s
-    c[C_MAG_NEW_MIN_GYRO] = p.mag_new_min_gyro_deg_s * d2r
-    c[C_MAG_MIN_UNDIST] = p.mag_min_undisturbed_s
-    c[C_MAG_MAX_REJECT] = p.mag_max_reject_s
-    c[C_MAG_REJECT_FACTOR] = p.mag_reject_factor
-    c[C_TAU_MAG] = p.tau_mag_s
-    c[C_MAX_DT] = p.max_dt_s
-    c[C_REST_BIAS] = float(p.rest_bias)
-    c[C_MOTION_BIAS] = float(p.motion_bias)
-    c[C_MAG_REJECT] = float(p.mag_rejection)
-    c[C_K_MAG_BIAS] = p.mag_bias_gain_per_s
-    c[C_HEADING_KF] = float(p.heading_kf)
-    # heading KF in units where the heading variance grows at rate 1 (per s) at rest: the
-    # measurement variance per update is tau_mag² / tsm (steady-state time constant tau_mag),
-    # the random walk per update is chosen so that the steady-state gain is exactly k_mag
-    k = c[C_K_MAG]
-    c[C_R_HEAD] = p.tau_mag_s ** 2 / tsm if p.tau_mag_s > 0 else 1.0
-    c[C_Q_HEAD] = c[C_R_HEAD] * k * k / (1.0 - k) if k < 1.0 else 1e12
-    c[C_Q_RATE] = p.heading_rate_noise_s ** 2
-    return c
-
-
-def new_state(p: RobustAHRSParams) -> np.ndarray:
-    """A fresh filter state (flat array, layout ``S_*``)."""
-    s = np.zeros(STATE_SIZE)
-    s[S_QG] = 1.0
-    s[S_QA] = 1.0
-    s[S_P:S_P + 9] = np.eye(3).ravel() * (p.bias_sigma_init_deg_s * math.pi / 180.0) ** 2
-    s[S_MAG_DIST] = 1.0
-    s[S_MAG_REJECT_T] = p.mag_max_reject_s
-    s[S_CAND_NORM] = -1.0
-    s[S_K_MAG_INIT] = 1.0
-    s[S_P_HEAD] = 1e6
-    s[S_CD] = 1.0
-    return s
-
-
-# ---------------------------------------------------------------- readable reference
-class _LowPass:
-    """Readable twin of the kernel's ``_lp`` on a slice of the flat state."""
-
-    def __init__(self, s, off, n, b, tau, ts):
-        self.s, self.off, self.n, self.b, self.tau, self.ts = s, off, n, b, tau, ts
-
-    def __call__(self, x):
-        s, o, n = self.s, self.off, self.n
-        b0, b1, b2, a1, a2 = self.b
-        z0 = s[o:o + n]           # views into the state
-        z1 = s[o + n:o + 2 * n]
-        if s[o + 2 * n] >= 0.0:   # start-up: running mean
-            s[o + 2 * n] += 1.0
-            z0 += x
-            y = z0 / s[o + 2 * n]
-            if s[o + 2 * n] * self.ts >= self.tau:
-                z0[:] = y * (1.0 - b0)
-                z1[:] = y * (b2 - a2)
-                s[o + 2 * n] = -1.0
-            return y
-        y = b0 * x + z0
-        z0[:] = b1 * x - a1 * y + z1
-        z1[:] = b2 * x - a2 * y
+# ---------------------------------------------------------------- readable twin
+# The phases of ``gnomon.kernels.robust_ahrs.robust_ahrs_step`` written with numpy, on the
+# same state record (``s``: ``state.view(np.recarray)[0]``, fields by name) and the same
+# ``Coefficients`` ``c``. Vectors are (3,) arrays in the frame their name says.
+def _lowpass(f, x, lp):
+    """``LowPass`` ``lp`` of ``x`` (array), state ``f`` (a ``LOWPASS_*`` record): for the
+    first ``tau_s`` the running mean, which then becomes the filter's steady state."""
+    if f.n >= 0:
+        n = f.n + 1
+        f.z0 += x  # the running sum
+        y = f.z0 / n
+        if n * lp.ts_s >= lp.tau_s:
+            f.z0, f.z1, n = y * (1.0 - lp.b0), y * (lp.b2 - lp.a2), -1
+        f.n = n
         return y
+    y = lp.b0 * x + f.z0
+    f.z0, f.z1 = lp.b1 * x - lp.a1 * y + f.z1, lp.b2 * x - lp.a2 * y
+    return y
 
 
 def _wrap(a):
     return a - 2 * math.pi if a > math.pi else (a + 2 * math.pi if a < -math.pi else a)
+
+
+def _dcm6(s) -> np.ndarray:
+    """``R_6b`` (3, 3): body to the inclination-corrected frame 6."""
+    return dcm_from_quat(quat_mul(s.q_acc, s.q_gyr))
+
+
+def _rest_gyro(s, c, g):
+    """Rest detection, gyro part: low-pass ``g`` (rad/s) into ``s.gyro_lp``; a large
+    deviation (or a low-passed rate beyond the bias bound) ends a rest phase."""
+    s.gyro_lp = g_lp = _lowpass(s.rest_gyro_lp, g, c.rest_lp)
+    dev = g - g_lp
+    if dev @ dev >= c.rest_th_gyro2 or np.max(np.abs(g_lp)) > c.bias_clip:
+        s.rest_t, s.rest = 0.0, False
+
+
+def _strapdown(s, dt, g):
+    """``q_gyr <- q_gyr ⊗ exp((g - b) dt)``; ``rot2 += |g - b|² dt``."""
+    if dt > 0.0:
+        r = (g - s.bias) * dt
+        s.rot2 += (r @ r) / dt
+        if r @ r > 0.0:
+            s.q_gyr = _normalise(quat_mul(s.q_gyr, quat_from_rotvec(r)))
+
+
+def _rest_acc(s, c, a):
+    """Rest detection, accelerometer part: rest after ``rest_min_s`` within the threshold
+    of the low-passed specific force ``a`` (m/s²)."""
+    dev = a - _lowpass(s.rest_acc_lp, a, c.rest_lp)
+    if dev @ dev >= c.rest_th_acc2:
+        s.rest_t, s.rest = 0.0, False
+    else:
+        s.rest_t += c.ts_s
+        if s.rest_t >= c.rest_min_s:
+            s.rest = True
+
+
+def _inclination(s, c, a):
+    """Low-pass the specific force in frame I, see it in frame 6 (``f``, normalised) and
+    turn ``q_acc`` by the rotation taking ``f`` to up. Returns ``f`` (None if zero)."""
+    f = dcm_from_quat(s.q_acc) @ _lowpass(s.acc_lp, dcm_from_quat(s.q_gyr) @ a, c.acc_lp)
+    nf = np.linalg.norm(f)
+    if not nf > 0.0:
+        return None
+    f = f / nf
+    cw = math.sqrt(max(0.5 * (f[2] + 1.0), 0.0))
+    corr = (np.array([cw, 0.5 * f[1] / cw, -0.5 * f[0] / cw, 0.0]) if cw > 1e-6
+            else np.array([0.0, 1.0, 0.0, 0.0]))
+    s.q_acc = _normalise(quat_mul(corr, s.q_acc))
+    s.acc_rate = math.hypot(f[0], f[1]) / c.ts_s  # sin(correction angle) / ts
+    return f
+
+
+def _bias_kf(s, c, f):
+    """Gyro-bias Kalman filter on every ``bias_every``-th accelerometer sample: at rest
+    ``H = I`` with the low-passed gyro; in motion the inclination correction ``f`` (frame 6)
+    measures the horizontal ``R_6b b`` (both sides low-passed, vertical pulled to 0)."""
+    run = s.bias_count == 0
+    s.bias_count = (s.bias_count + 1) % c.bias_every
+    if not (run and (c.rest_bias or c.motion_bias)):
+        return
+    R = _dcm6(s)
+    rb = (R @ s.bias)[:2]
+    H = _lowpass(s.bias_R_lp, R, c.bias_lp)
+    rb_lp = _lowpass(s.bias_Rb_lp, rb, c.bias_lp)
+    P = s.P  # a view
+    P[np.diag_indices(3)] += np.where(np.diag(P) < c.bias_p0, c.bias_v, 0.0)
+    if c.rest_bias and s.rest:
+        _bias_update(s, c, np.eye(3), s.gyro_lp - s.bias, np.full(3, c.w_rest))
+    elif c.motion_bias and f is not None:
+        y = np.array([-f[1] / c.ts_s + rb_lp[0], f[0] / c.ts_s + rb_lp[1], 0.0])
+        _bias_update(s, c, H, y - H @ s.bias, np.array([c.w_motion, c.w_motion,
+                                                        c.w_vertical]))
+
+
+def _bias_update(s, c, H, e, w):
+    """Kalman update of the bias with the innovation ``e`` (clipped), measurement matrix
+    ``H`` and variances ``w``; the bias stays within ``bias_clip``."""
+    lim = c.bias_clip
+    P = s.P.copy()
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(w))
+    s.bias = np.clip(s.bias + K @ np.clip(e, -lim, lim), -lim, lim)
+    P -= K @ H @ P
+    s.P = 0.5 * (P + P.T)  # symmetric against rounding over long runs
+
+
+def _magnetometer(s, c, m):
+    """Heading from the magnetometer ``m`` (body): accumulate the field in frame 6; on a
+    complete block update the hard-iron offset, test for disturbances and turn ``delta``
+    towards the field's heading (and optionally feed the vertical bias)."""
+    R, hi = _dcm6(s), s.hard_iron
+    if c.hi_lambda > 0.0:  # block sums of the raw field
+        hi.block_m += m
+        hi.block_mm += m @ m
+        m = m - hi.o
+    s.mag_sum += R @ m
+    s.mag_count += 1
+    if not (s.mag_count >= c.mag_every or s.k_mag_init == 1.0):
+        return  # accumulating: the heading filter runs on every mag_every-th sample
+    cnt = s.mag_count
+    m6 = s.mag_sum * (1.0 / cnt)  # the mean field in frame 6
+    if c.hi_lambda > 0.0:
+        _hard_iron(s, c, R, cnt)
+    s.mag_sum, s.mag_count = 0.0, 0
+    soft = 1.0
+    if c.mag_rejection:
+        nm = np.linalg.norm(m6)
+        cur = _mag_disturbance(s, c, nm, -math.asin(min(max(m6[2] / nm, -1.0), 1.0)))
+        soft = _new_field(s, c, cur)
+    dis = _wrap(math.atan2(m6[0], m6[1]) - s.delta)
+    s.mag_dis = dis
+    s.k_mag_used = k = _heading_gain(s, c, soft)
+    s.delta = _wrap(s.delta + k * dis)
+    s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * s.delta), math.sin(0.5 * s.delta)
+    if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:  # heading-rate bias loop
+        db = c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag
+        s.bias = np.clip(s.bias + db * R[2], -c.bias_clip, c.bias_clip)  # R[2]: up in b
+
+
+def _hard_iron(s, c, R, cnt):
+    """Fold a block of ``cnt`` samples into the weighted sums and solve for the hard-iron
+    offset ``o`` (body).
+
+    Least squares of ``R_6b m = h + R_6b o`` over the window (``h`` fixed in frame 6)
+    with the prior ``reg·w·|o|²``: ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m`` with
+    ``S = Σ R``, ``w = Σ 1``. Used only if it leaves less than ``hard_iron_gate`` of the
+    residual energy without an offset (``h`` = the mean of ``R m``); else zero.
+    """
+    hi, lam = s.hard_iron, c.hi_lambda
+    hi.w = lam * hi.w + cnt
+    hi.S = lam * hi.S + cnt * R
+    hi.rm = lam * hi.rm + s.mag_sum + cnt * (R @ hi.o)  # Σ R m of the raw field
+    hi.m = lam * hi.m + hi.block_m
+    hi.mm = lam * hi.mm + hi.block_mm
+    hi.block_m, hi.block_mm = 0.0, 0.0
+    w, S, rm = hi.w, hi.S, hi.rm
+    A = w * w * (1.0 + c.hi_reg) * np.eye(3) - S.T @ S
+    if np.linalg.det(A) <= 0.0:
+        return
+    o = np.linalg.solve(A, w * hi.m - S.T @ rm)
+    h = (rm - S @ o) / w
+    e0 = hi.mm - rm @ rm / w
+    e1 = hi.mm - h @ rm - o @ hi.m
+    hi.o = o if e1 < c.hi_gate * e0 else 0.0
+
+
+def _mag_disturbance(s, c, nm, dip):
+    """Norm/dip test of the field against the learned reference (disturbed outside the
+    thresholds, undisturbed after ``mag_min_undisturbed_s`` within them). Returns the
+    low-passed ``(norm, dip)``."""
+    cur = _lowpass(s.mag_lp, np.array([nm, dip]), c.mag_lp)
+    ref_n = s.mag_ref_norm
+    if abs(cur[0] - ref_n) < c.mag_norm_th * ref_n and abs(cur[1] - s.mag_ref_dip) < c.mag_dip_th:
+        s.mag_undisturbed_t += c.ts_mag
+        if s.mag_undisturbed_t >= c.mag_min_undisturbed_s:
+            s.mag_disturbed = False
+            s.mag_ref_norm += c.k_mag_ref * (cur[0] - ref_n)
+            s.mag_ref_dip += c.k_mag_ref * (cur[1] - s.mag_ref_dip)
+    else:
+        s.mag_undisturbed_t, s.mag_disturbed = 0.0, True
+    return cur
+
+
+def _new_field(s, c, cur):
+    """A steady new field (``cur`` = low-passed norm, dip) becomes the reference after
+    ``mag_new_s`` of motion in it. Returns the soft de-weighting factor
+    ``1 + soft_norm (Δnorm/norm)² + soft_dip Δdip²``."""
+    cand_n = s.cand_norm
+    if abs(cur[0] - cand_n) < c.mag_norm_th * cand_n and abs(cur[1] - s.cand_dip) < c.mag_dip_th:
+        if s.gyro_lp @ s.gyro_lp >= c.mag_new_min_gyro2:
+            s.cand_t += c.ts_mag
+        s.cand_norm += c.k_mag_ref * (cur[0] - cand_n)
+        s.cand_dip += c.k_mag_ref * (cur[1] - s.cand_dip)
+        if s.mag_disturbed and (s.cand_t >= c.mag_new_s or (
+                s.mag_ref_norm == 0.0 and s.cand_t >= c.mag_new_first_s)):
+            s.mag_ref_norm, s.mag_ref_dip = s.cand_norm, s.cand_dip
+            s.mag_disturbed, s.mag_undisturbed_t = False, c.mag_min_undisturbed_s
+    else:
+        s.cand_t, s.cand_norm, s.cand_dip = 0.0, cur[0], cur[1]
+    if s.mag_ref_norm > 0.0:
+        dn = (cur[0] - s.mag_ref_norm) / s.mag_ref_norm
+        dd = cur[1] - s.mag_ref_dip
+        return 1.0 + c.soft_norm * dn * dn + c.soft_dip * dd * dd
+    return 1.0
+
+
+def _heading_gain(s, c, soft):
+    """This update's heading gain: ``k_mag`` or the heading KF's, 0 while a disturbance is
+    rejected (divided after ``mag_max_reject_s``), divided by the de-weighting ``soft``,
+    at least the running-mean gain at start."""
+    k, r_head = c.k_mag, c.r_head  # r_head: the heading measurement variance
+    if c.heading_kf:
+        s.p_head += c.q_head + c.q_rate * s.rot2
+    s.rot2 = 0.0
+    if c.mag_rejection:
+        if s.mag_disturbed:
+            if s.mag_reject_t <= c.mag_max_reject_s:
+                s.mag_reject_t += c.ts_mag
+                k, r_head = 0.0, 0.0
+            else:
+                k /= c.mag_reject_factor
+                r_head = c.r_head * c.mag_reject_factor * c.mag_reject_factor
+        else:
+            s.mag_reject_t = max(s.mag_reject_t - c.mag_reject_factor * c.ts_mag, 0.0)
+    k /= soft
+    r_head *= soft
+    if c.heading_kf and r_head > 0.0:
+        k = s.p_head / (s.p_head + r_head)
+        s.p_head *= 1.0 - k
+    ki = s.k_mag_init
+    if ki != 0.0:  # running mean at start: gain at least 1/count
+        if k < ki:
+            k = ki
+            s.p_head = ki * c.r_head
+        ki = ki / (ki + 1.0)
+        s.k_mag_init = 0.0 if ki * c.tau_mag_s < c.ts_mag else ki
+    return k
+
+
+def _sample(v, name):
+    """A sensor sample as a float array (3,), or None for no new sample (None or zero)."""
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=float)
+    if a.shape != (3,):
+        raise InputError(f"expected a 3-vector, got shape {a.shape}", field=name)
+    return a if a @ a > 0.0 else None
+
+
+def _normalise(q):
+    return q / np.linalg.norm(q)
 
 
 class RobustAHRS(Estimator):
@@ -383,14 +457,18 @@ class RobustAHRS(Estimator):
     summary = ("Decoupled AHRS (VQF structure): inertial-frame accelerometer filter, rest and "
                "motion bias KF, heading-only magnetometer with disturbance rejection, heading "
                "Kalman gain, online hard-iron offset")
+    paper = "VQF's structure (Laidig & Seel 2023) + heading KF + hard-iron"
+    kind = "imu"
+    reference_frame = "ENU"
     Params = RobustAHRSParams
     needs = ("gyro", "accel", "mag")
-    state_fields = ("s", "ts", "t_last")
+    state_fields = ("state", "ts", "t_last")
 
     def reset(self) -> None:
-        self.s = new_state(self.params)  # flat state, layout S_*
+        self.state = new_state(self.params)  # one STATE record (gnomon.kernels.robust_ahrs)
         self.ts = None  # s, nominal sample time of the filter coefficients
         self.t_last = None  # s, time of the last sample processed by ``run``
+        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
 
     def start(self, ts_s: float) -> None:
         """Fix the nominal sample time (s) used for the filter coefficients."""
@@ -398,240 +476,61 @@ class RobustAHRS(Estimator):
             raise InputError(f"sample time must be > 0, got {ts_s!r}", field="ts_s")
         self.ts = float(ts_s)
 
-    # views of the state
+    def coefficients(self) -> Coefficients:
+        """The kernel's coefficients for ``params`` and the nominal sample time ``ts``."""
+        cached = getattr(self, "_coefficients", None)
+        if cached is None or cached[0] != (self.params, self.ts):
+            cached = self._coefficients = ((self.params, self.ts),
+                                           coefficients(self.params, self.ts))
+        return cached[1]
+
+    @property
+    def record(self):
+        """The state record with attribute access (a view: writing it changes the filter)."""
+        return self.state.view(np.recarray)[0]
+
     @property
     def q(self) -> np.ndarray:
-        """Current ``q_nb`` (ENU from body)."""
-        q6 = quat_mul(self.s[S_QA:S_QA + 4], self.s[S_QG:S_QG + 4])
-        return quat_mul(np.array([self.s[S_CD], 0.0, 0.0, self.s[S_SD]]), q6)
+        """Current ``q_nb`` (ENU from body) (4,): ``q_z(delta) ⊗ q_acc ⊗ q_gyr``."""
+        s = self.record
+        q6 = quat_mul(s.q_acc, s.q_gyr)
+        return quat_mul(np.array([s.cos_half_delta, 0.0, 0.0, s.sin_half_delta]), q6)
 
     @property
     def bias(self) -> np.ndarray:
-        return self.s[S_BIAS:S_BIAS + 3].copy()
+        """Current gyro bias estimate (3,), rad/s, body frame."""
+        return self.state["bias"][0].copy()
 
-    def update(self, dt_s: float, gyro, acc, mag) -> np.ndarray:
-        """One sample: ``gyro`` rad/s, ``acc`` m/s², ``mag`` any unit (body). Returns ``q_nb``."""
+    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, mag_uT=None) -> np.ndarray:
+        """One sample: ``dt_s`` (s) since the last one, gyro (rad/s), accelerometer (m/s²)
+        and magnetometer (µT, or any one unit), all (3,) in the body frame. ``None`` (or a
+        zero vector) is no new sample of that sensor: its phase is skipped. Returns
+        ``q_nb`` (ENU from body); ``flags`` says which phases were skipped."""
         if self.ts is None:
             if not dt_s > 0:
                 raise InputError("call start(ts_s) first or pass dt_s > 0", field="dt_s")
             self.start(dt_s)
-        p, s, ts = self.params, self.s, self.ts
-        c = coefficients(p, ts)
-        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
-        g = np.asarray(gyro, float)
-        a = np.asarray(acc, float)
-        m = np.asarray(mag, float)
-        clip = c[C_BIAS_CLIP]
-        bias = s[S_BIAS:S_BIAS + 3]  # view
-        # rest detection (gyro)
-        if p.rest_bias or p.mag_rejection:
-            g_lp = _LowPass(s, S_RG, 3, c[C_REST_LP:C_REST_LP + 5], p.rest_tau_s, ts)(g)
-            s[S_RG_OUT:S_RG_OUT + 3] = g_lp
-            dev = g - g_lp
-            if dev @ dev >= c[C_REST_TH_GYRO2] or np.max(np.abs(g_lp)) > clip:
-                s[S_REST_T] = 0.0
-                s[S_REST] = 0.0
-        # strapdown
-        if dt_s > 0.0:
-            s[S_ROT2] += float((g - bias) @ (g - bias)) * dt_s  # ∫|ω|² dt
-        if dt_s > 0.0 and np.any(g != bias):
-            s[S_QG:S_QG + 4] = _normalise(quat_mul(s[S_QG:S_QG + 4],
-                                                   quat_from_rotvec((g - bias) * dt_s)))
-        if dt_s > p.max_dt_s:
-            self.flags["gap"] = True
+        if gyro_rad_s is None:
+            raise InputError("robust-ahrs needs a gyro sample at every update",
+                             field="gyro_rad_s")
+        g = _sample(gyro_rad_s, "gyro_rad_s")
+        g = np.zeros(3) if g is None else g  # a zero rate is a sample
+        a, m = _sample(accel_m_s2, "accel_m_s2"), _sample(mag_uT, "mag_uT")
+        c, s = self.coefficients(), self.record
+        self.flags = {"acc_skipped": a is None, "mag_skipped": m is None, "gap": False}
+        if c.rest_bias or c.mag_rejection:
+            _rest_gyro(s, c, g)
+        _strapdown(s, dt_s, g)
+        if dt_s > c.max_dt_s:
+            self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": True}
             return self.q
-        # accelerometer
-        if a @ a > 0.0:
-            if p.rest_bias:
-                a_lp = _LowPass(s, S_RA, 3, c[C_REST_LP:C_REST_LP + 5], p.rest_tau_s, ts)(a)
-                dev = a - a_lp
-                if dev @ dev >= c[C_REST_TH_ACC2]:
-                    s[S_REST_T] = 0.0
-                    s[S_REST] = 0.0
-                else:
-                    s[S_REST_T] += ts
-                    if s[S_REST_T] >= p.rest_min_s:
-                        s[S_REST] = 1.0
-            acc_lp = _LowPass(s, S_ALP, 3, c[C_ACC_LP:C_ACC_LP + 5], p.tau_acc_s, ts)(
-                dcm_from_quat(s[S_QG:S_QG + 4]) @ a)
-            f = dcm_from_quat(s[S_QA:S_QA + 4]) @ acc_lp
-            nf = np.linalg.norm(f)
-            if nf > 0.0:
-                f = f / nf
-                cw = math.sqrt(max(0.5 * (f[2] + 1.0), 0.0))
-                corr = (np.array([cw, 0.5 * f[1] / cw, -0.5 * f[0] / cw, 0.0]) if cw > 1e-6
-                        else np.array([0.0, 1.0, 0.0, 0.0]))
-                s[S_QA:S_QA + 4] = _normalise(quat_mul(corr, s[S_QA:S_QA + 4]))
-                s[S_ACC_RATE] = math.hypot(f[0], f[1]) / ts  # sin(correction angle) / ts
-            run_bias = s[S_BIAS_CNT] == 0.0
-            s[S_BIAS_CNT] = (s[S_BIAS_CNT] + 1.0) % p.bias_every
-            if (p.rest_bias or p.motion_bias) and run_bias:
-                ts_b = c[C_TS_BIAS]
-                R = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
-                rb = (R @ bias)[:2]
-                R_lp = _LowPass(s, S_RLP, 9, c[C_BIAS_LP:C_BIAS_LP + 5], p.tau_acc_s, ts_b)(
-                    R.ravel()).reshape(3, 3)
-                rb_lp = _LowPass(s, S_BLP, 2, c[C_BIAS_LP:C_BIAS_LP + 5], p.tau_acc_s, ts_b)(rb)
-                P = s[S_P:S_P + 9].reshape(3, 3)  # view
-                for i in range(3):
-                    if P[i, i] < c[C_BIAS_P0]:
-                        P[i, i] += c[C_BIAS_V]
-                H = e = w = None
-                if p.rest_bias and s[S_REST] != 0.0:
-                    H, e = np.eye(3), s[S_RG_OUT:S_RG_OUT + 3] - bias
-                    w = np.full(3, c[C_W_REST])
-                elif p.motion_bias and nf > 0.0:
-                    H = R_lp
-                    e = np.array([-f[1] / ts + rb_lp[0], f[0] / ts + rb_lp[1], 0.0]) - R_lp @ bias
-                    w = np.array([c[C_W_MOTION], c[C_W_MOTION], c[C_W_VERTICAL]])
-                if H is not None:
-                    e = np.clip(e, -clip, clip)
-                    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(w))
-                    bias[:] = np.clip(bias + K @ e, -clip, clip)
-                    P -= K @ H @ P
-                    P[:] = 0.5 * (P + P.T)  # symmetric against rounding over long runs
-        else:
-            self.flags["acc_skipped"] = True
-        # magnetometer: heading only
-        run_mag = False
-        if m @ m > 0.0:
-            R6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
-            if c[C_HI_LAMBDA] > 0.0:  # hard-iron block sums of the raw field
-                s[S_HI_BM:S_HI_BM + 3] += m
-                s[S_HI_BMM] += m @ m
-                m = m - s[S_HI_O:S_HI_O + 3]
-            # field in frame 6, averaged over mag_every samples (the first sample at once)
-            s[S_MSUM:S_MSUM + 3] += R6 @ m
-            s[S_MAG_CNT] += 1.0
-            run_mag = s[S_MAG_CNT] >= p.mag_every or s[S_K_MAG_INIT] == 1.0
-        if m @ m > 0.0 and not run_mag:
-            pass  # accumulating: the heading filter runs on every mag_every-th sample
-        elif m @ m > 0.0:
-            tsm = c[C_TS_MAG]
-            cnt = s[S_MAG_CNT]
-            m6 = s[S_MSUM:S_MSUM + 3] / cnt
-            lam = c[C_HI_LAMBDA]
-            if lam > 0.0:  # weighted sums per block, R at the block's end
-                R6 = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))
-                s[S_HI_W] = lam * s[S_HI_W] + cnt
-                s[S_HI_S:S_HI_S + 9] = lam * s[S_HI_S:S_HI_S + 9] + cnt * R6.ravel()
-                s[S_HI_RM:S_HI_RM + 3] = (lam * s[S_HI_RM:S_HI_RM + 3] + s[S_MSUM:S_MSUM + 3]
-                                          + cnt * (R6 @ s[S_HI_O:S_HI_O + 3]))
-                s[S_HI_M:S_HI_M + 3] = lam * s[S_HI_M:S_HI_M + 3] + s[S_HI_BM:S_HI_BM + 3]
-                s[S_HI_MM] = lam * s[S_HI_MM] + s[S_HI_BMM]
-                s[S_HI_BM:S_HI_BM + 4] = 0.0
-                s[S_HI_O:S_HI_O + 3] = self._hard_iron(c)
-            s[S_MSUM:S_MSUM + 3] = 0.0
-            s[S_MAG_CNT] = 0.0
-            if p.mag_rejection:
-                soft = self._mag_disturbance(m6, c, tsm)
-            else:
-                soft = 1.0
-            dis = _wrap(math.atan2(m6[0], m6[1]) - s[S_DELTA])
-            s[S_MAG_DIS] = dis
-            k = c[C_K_MAG]
-            r_head = c[C_R_HEAD]  # heading measurement variance
-            if p.heading_kf:
-                s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
-            s[S_ROT2] = 0.0
-            if p.mag_rejection:
-                if s[S_MAG_DIST] != 0.0:
-                    if s[S_MAG_REJECT_T] <= p.mag_max_reject_s:
-                        s[S_MAG_REJECT_T] += tsm
-                        k = 0.0
-                        r_head = 0.0
-                    else:
-                        k /= p.mag_reject_factor
-                        r_head = c[C_R_HEAD] * p.mag_reject_factor ** 2
-                else:
-                    s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - p.mag_reject_factor * tsm, 0.0)
-            k /= soft  # soft de-weighting by the field's distance from the reference
-            r_head *= soft
-            if p.heading_kf and r_head > 0.0:
-                k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
-                s[S_P_HEAD] *= 1.0 - k
-            ki = s[S_K_MAG_INIT]
-            if ki != 0.0:  # running mean at start: gain at least 1/k
-                if k < ki:
-                    k = ki
-                    s[S_P_HEAD] = ki * c[C_R_HEAD]
-                ki = ki / (ki + 1.0)
-                s[S_K_MAG_INIT] = 0.0 if ki * p.tau_mag_s < tsm else ki
-            s[S_K_MAG_USED] = k
-            s[S_DELTA] = _wrap(s[S_DELTA] + k * dis)
-            s[S_CD] = math.cos(0.5 * s[S_DELTA])
-            s[S_SD] = math.sin(0.5 * s[S_DELTA])
-            if p.mag_bias_gain_per_s > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
-                up_b = dcm_from_quat(quat_mul(s[S_QA:S_QA + 4], s[S_QG:S_QG + 4]))[2]
-                db = p.mag_bias_gain_per_s * (k / c[C_K_MAG]) * dis * tsm
-                bias[:] = np.clip(bias + db * up_b, -clip, clip)
-        else:
-            self.flags["mag_skipped"] = True
+        if a is not None:
+            if c.rest_bias:
+                _rest_acc(s, c, a)
+            _bias_kf(s, c, _inclination(s, c, a))
+        if m is not None:
+            _magnetometer(s, c, m)
         return self.q
-
-    def _hard_iron(self, c) -> np.ndarray:
-        """Hard-iron offset ``o`` (body) from the weighted sums (readable).
-
-        Least squares of ``R_6b m = h + R_6b o`` over the window (``h`` fixed in frame 6)
-        with the prior ``reg·w·|o|²``: ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m`` with
-        ``S = Σ R``, ``w = Σ 1``. Used only if it leaves less than ``hard_iron_gate`` of the
-        residual energy without an offset (``h`` = the mean of ``R m``); else zero.
-        """
-        s = self.s
-        w = s[S_HI_W]
-        S = s[S_HI_S:S_HI_S + 9].reshape(3, 3)
-        rm, msum, mm = s[S_HI_RM:S_HI_RM + 3], s[S_HI_M:S_HI_M + 3], s[S_HI_MM]
-        A = w * w * (1.0 + c[C_HI_REG]) * np.eye(3) - S.T @ S
-        if np.linalg.det(A) <= 0.0:
-            return s[S_HI_O:S_HI_O + 3].copy()
-        o = np.linalg.solve(A, w * msum - S.T @ rm)
-        h = (rm - S @ o) / w
-        e0 = mm - rm @ rm / w
-        e1 = mm - h @ rm - o @ msum
-        return o if e1 < c[C_HI_GATE] * e0 else np.zeros(3)
-
-    def _mag_disturbance(self, m6, c, ts) -> float:
-        """Norm/dip test against the learned reference; new-field acceptance (readable).
-
-        Returns the soft de-weighting factor ``1 + (Δnorm/norm/σ_n)² + (Δdip/σ_d)²``."""
-        p, s = self.params, self.s
-        nm = float(np.linalg.norm(m6))
-        cur = _LowPass(s, S_MN, 2, c[C_MAG_CUR_LP:C_MAG_CUR_LP + 5], p.mag_current_tau_s, ts)(
-            np.array([nm, -math.asin(min(max(m6[2] / nm, -1.0), 1.0))]))
-        kref = c[C_K_MAG_REF]
-        dip_th = c[C_MAG_DIP_TH]
-        ref_n = s[S_MAG_REF_NORM]
-        if abs(cur[0] - ref_n) < p.mag_norm_th * ref_n and abs(cur[1] - s[S_MAG_REF_DIP]) < dip_th:
-            s[S_MAG_UNDIST_T] += ts
-            if s[S_MAG_UNDIST_T] >= p.mag_min_undisturbed_s:
-                s[S_MAG_DIST] = 0.0
-                s[S_MAG_REF_NORM] += kref * (cur[0] - ref_n)
-                s[S_MAG_REF_DIP] += kref * (cur[1] - s[S_MAG_REF_DIP])
-        else:
-            s[S_MAG_UNDIST_T] = 0.0
-            s[S_MAG_DIST] = 1.0
-        cand_n = s[S_CAND_NORM]
-        if abs(cur[0] - cand_n) < p.mag_norm_th * cand_n and abs(cur[1] - s[S_CAND_DIP]) < dip_th:
-            g_lp = s[S_RG_OUT:S_RG_OUT + 3]
-            if g_lp @ g_lp >= c[C_MAG_NEW_MIN_GYRO] ** 2:
-                s[S_CAND_T] += ts
-            s[S_CAND_NORM] += kref * (cur[0] - cand_n)
-            s[S_CAND_DIP] += kref * (cur[1] - s[S_CAND_DIP])
-            if s[S_MAG_DIST] != 0.0 and (s[S_CAND_T] >= p.mag_new_s or (
-                    s[S_MAG_REF_NORM] == 0.0 and s[S_CAND_T] >= p.mag_new_first_s)):
-                s[S_MAG_REF_NORM] = s[S_CAND_NORM]
-                s[S_MAG_REF_DIP] = s[S_CAND_DIP]
-                s[S_MAG_DIST] = 0.0
-                s[S_MAG_UNDIST_T] = p.mag_min_undisturbed_s
-        else:
-            s[S_CAND_T] = 0.0
-            s[S_CAND_NORM] = cur[0]
-            s[S_CAND_DIP] = cur[1]
-        if s[S_MAG_REF_NORM] > 0.0:
-            dn = (cur[0] - s[S_MAG_REF_NORM]) / s[S_MAG_REF_NORM]
-            dd = cur[1] - s[S_MAG_REF_DIP]
-            return 1.0 + c[C_SOFT_N] * dn * dn + c[C_SOFT_D] * dd * dd
-        return 1.0
 
     def run(self, rec: Recording) -> Estimate:
         """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
@@ -647,17 +546,15 @@ class RobustAHRS(Estimator):
             # that a run split after 100 samples resumes exactly
             pos = dt[(dt > 0) & (dt <= self.params.max_dt_s)][:100]
             self.start(float(np.median(pos)) if pos.size else 0.01)
-        c = coefficients(self.params, self.ts)
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
-               "hi": np.empty((n, 3)),
-               "flags": np.empty(n, np.int64)}
+               "hi": np.empty((n, 3)), "flags": np.empty(n, np.int64)}
         # strided views are fine for the kernel (no copy)
         robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
                           np.asarray(rec.accel, dtype=float),
-                          np.asarray(rec.mag, dtype=float), self.s, c, out["q"],
-                          out["bias"], out["rest"], out["dist"], out["acc_rate"], out["k_mag"],
-                          out["hi"], out["flags"])
+                          np.asarray(rec.mag, dtype=float), self.state, self.coefficients(),
+                          out["q"], out["bias"], out["rest"], out["dist"], out["acc_rate"],
+                          out["k_mag"], out["hi"], out["flags"])
         self.t_last = float(rec.t[-1])
         f = out["flags"]
         return Estimate(
@@ -666,10 +563,6 @@ class RobustAHRS(Estimator):
             signals={"bias_rad_s": out["bias"], "rest": out["rest"],
                      "mag_disturbed": out["dist"], "acc_correction_rad_s": out["acc_rate"],
                      "mag_gain": out["k_mag"], "hard_iron": out["hi"],
-                     "acc_skipped": (f & 1) != 0,
-                     "mag_skipped": (f & 2) != 0, "gap": (f & 4) != 0},
+                     "acc_skipped": (f & ACC_SKIPPED) != 0,
+                     "mag_skipped": (f & MAG_SKIPPED) != 0, "gap": (f & GAP) != 0},
         )
-
-
-def _normalise(q):
-    return q / np.linalg.norm(q)

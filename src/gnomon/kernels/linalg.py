@@ -85,3 +85,79 @@ def symmetrise(P):
             m = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = m
             P[j, i] = m
+
+
+# 3x3 matrices as row-major 9-tuples (a00, a01, a02, a10, ..., a22): kept in registers by
+# the scalar kernels, which read a matrix from a state record once (``mat3_load``), work
+# on tuples and write it back once (``mat3_store``). Sums run left to right over the inner
+# index, as in ``sum(a[i, k] * b[k, j] for k in range(3))``.
+@njit(inline="always")
+def mat3_load(m):
+    """The entries of the (3, 3) array ``m`` as a row-major 9-tuple."""
+    return (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
+
+
+@njit(inline="always")
+def mat3_store(m, a):
+    """``m[:] <- a``: the row-major 9-tuple ``a`` into the (3, 3) array ``m``."""
+    m[0, 0], m[0, 1], m[0, 2] = a[0], a[1], a[2]
+    m[1, 0], m[1, 1], m[1, 2] = a[3], a[4], a[5]
+    m[2, 0], m[2, 1], m[2, 2] = a[6], a[7], a[8]
+
+
+@njit(inline="always")
+def mat3_vec(a, x, y, z):
+    """``A v`` for a row-major 9-tuple ``A`` and ``v = (x, y, z)``, as a 3-tuple."""
+    return (a[0] * x + a[1] * y + a[2] * z,
+            a[3] * x + a[4] * y + a[5] * z,
+            a[6] * x + a[7] * y + a[8] * z)
+
+
+@njit(inline="always")
+def mat3_tvec(a, x, y, z):
+    """``Aᵀ v`` for a row-major 9-tuple ``A`` and ``v = (x, y, z)``, as a 3-tuple."""
+    return (a[0] * x + a[3] * y + a[6] * z,
+            a[1] * x + a[4] * y + a[7] * z,
+            a[2] * x + a[5] * y + a[8] * z)
+
+
+@njit(inline="always")
+def mat3_mul(a, b):
+    """``A B`` of row-major 9-tuples, as a 9-tuple."""
+    return (a[0] * b[0] + a[1] * b[3] + a[2] * b[6],
+            a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
+            a[0] * b[2] + a[1] * b[5] + a[2] * b[8],
+            a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
+            a[3] * b[1] + a[4] * b[4] + a[5] * b[7],
+            a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
+            a[6] * b[0] + a[7] * b[3] + a[8] * b[6],
+            a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
+            a[6] * b[2] + a[7] * b[5] + a[8] * b[8])
+
+
+@njit(inline="always")
+def mat3_mul_bt(a, b):
+    """``A Bᵀ`` of row-major 9-tuples, as a 9-tuple."""
+    return (a[0] * b[0] + a[1] * b[1] + a[2] * b[2],
+            a[0] * b[3] + a[1] * b[4] + a[2] * b[5],
+            a[0] * b[6] + a[1] * b[7] + a[2] * b[8],
+            a[3] * b[0] + a[4] * b[1] + a[5] * b[2],
+            a[3] * b[3] + a[4] * b[4] + a[5] * b[5],
+            a[3] * b[6] + a[4] * b[7] + a[5] * b[8],
+            a[6] * b[0] + a[7] * b[1] + a[8] * b[2],
+            a[6] * b[3] + a[7] * b[4] + a[8] * b[5],
+            a[6] * b[6] + a[7] * b[7] + a[8] * b[8])
+
+
+@njit(inline="always")
+def mat3_tmul(a, b):
+    """``Aᵀ B`` of row-major 9-tuples, as a 9-tuple."""
+    return (a[0] * b[0] + a[3] * b[3] + a[6] * b[6],
+            a[0] * b[1] + a[3] * b[4] + a[6] * b[7],
+            a[0] * b[2] + a[3] * b[5] + a[6] * b[8],
+            a[1] * b[0] + a[4] * b[3] + a[7] * b[6],
+            a[1] * b[1] + a[4] * b[4] + a[7] * b[7],
+            a[1] * b[2] + a[4] * b[5] + a[7] * b[8],
+            a[2] * b[0] + a[5] * b[3] + a[8] * b[6],
+            a[2] * b[1] + a[5] * b[4] + a[8] * b[7],
+            a[2] * b[2] + a[5] * b[5] + a[8] * b[8])

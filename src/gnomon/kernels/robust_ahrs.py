@@ -1,670 +1,733 @@
-"""Compiled batch loop of the robust decoupled AHRS (``gnomon.estimators.robust_ahrs``).
+"""Compiled step of the robust decoupled AHRS (``gnomon.estimators.robust_ahrs``): its
+coefficients, its state and the per-sample step, phase by phase.
 
-Twin of ``RobustAHRS.update`` (the tests compare the two sample by sample). The
-state is one flat float array whose layout (``S_*`` offsets) and the
-coefficient vector (``C_*``) are defined in the estimator module, so that the
-readable update and this kernel share them.
+Twin of ``RobustAHRS.update`` (the tests compare the two sample by sample). The shape
+is the one of every gnomon kernel (``gnomon/kernels/__init__.py`` says why): the
+``Coefficients`` named tuple is built once from the parameters and the nominal sample
+time by ``coefficients(params, ts_s)``; the evolving state is one record of the
+structured dtype ``STATE`` (``new_state(params)`` gives a fresh one-element array), whose
+low-pass filters and hard-iron sums are nested records (``LOWPASS_3``, ``HARD_IRON``).
+The readable twin works on the very same record (``state.view(np.recarray)[0]``).
+
+Frames: body b (sensor), almost-inertial I (``q_gyr = q_Ib``, strapdown), the
+inclination-corrected frame 6 (``q_acc = q_6I``, z up) and ENU n
+(``q_nb = q_z(delta) ⊗ q_6b``). Units: rad, rad/s, m/s², s; the magnetometer in any
+one unit (the tests use µT).
+
+The step (``robust_ahrs_step``) calls the phases in order; each is a short function
+inlined into it (``inline="always"``), so the compiled step is still one function whose
+locals stay in registers:
+
+1. ``rest_gyro``: gyro low-pass and deviation (rest detection, gyro part);
+2. ``strapdown``: ``q_gyr <- q_gyr ⊗ exp((ω - b) dt)``; a gap (``dt > max_dt_s``) ends
+   the step here;
+3. ``rest_acc`` and ``inclination``: accelerometer low-pass in I and the correction of
+   ``q_acc`` that takes it to up;
+4. ``bias_kf``: the gyro-bias Kalman filter, at rest (``H = I``) or in motion (the
+   inclination correction as a measurement of the horizontal bias);
+5. ``mag_accumulate`` → ``hard_iron`` → ``mag_disturbance`` / ``new_field`` →
+   ``heading_gain`` → ``heading``: the magnetometer, heading only.
+
+The 3x3 matrices of a phase (``R_6b``, ``P``, ``S``) are row-major 9-tuples
+(``gnomon.kernels.linalg.mat3_*``), read from the record once and written back once.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from gnomon.estimators.robust_ahrs import (  # noqa: I001
-    C_ACC_LP,
-    C_BIAS_CLIP,
-    C_BIAS_EVERY,
-    C_BIAS_LP,
-    C_BIAS_P0,
-    C_BIAS_V,
-    C_HEADING_KF,
-    C_HI_GATE,
-    C_HI_LAMBDA,
-    C_HI_REG,
-    C_K_MAG,
-    C_K_MAG_BIAS,
-    C_K_MAG_REF,
-    C_MAG_CUR_LP,
-    C_MAG_DIP_TH,
-    C_MAG_EVERY,
-    C_MAG_MAX_REJECT,
-    C_MAG_MIN_UNDIST,
-    C_MAG_NEW,
-    C_MAG_NEW_FIRST,
-    C_MAG_NEW_MIN_GYRO,
-    C_MAG_NORM_TH,
-    C_MAG_REJECT,
-    C_MAG_REJECT_FACTOR,
-    C_MAX_DT,
-    C_MOTION_BIAS,
-    C_Q_HEAD,
-    C_Q_RATE,
-    C_R_HEAD,
-    C_REST_BIAS,
-    C_REST_LP,
-    C_REST_MIN,
-    C_REST_TH_ACC2,
-    C_REST_TH_GYRO2,
-    C_SOFT_D,
-    C_SOFT_N,
-    C_TAU_ACC,
-    C_TAU_MAG,
-    C_TAU_MAG_CUR,
-    C_TAU_REST,
-    C_TS,
-    C_TS_BIAS,
-    C_TS_MAG,
-    C_W_MOTION,
-    C_W_REST,
-    C_W_VERTICAL,
-    S_ACC_RATE,
-    S_ALP,
-    S_BIAS,
-    S_BIAS_CNT,
-    S_BLP,
-    S_CAND_DIP,
-    S_CAND_NORM,
-    S_CAND_T,
-    S_CD,
-    S_DELTA,
-    S_HI_BM,
-    S_HI_BMM,
-    S_HI_M,
-    S_HI_MM,
-    S_HI_O,
-    S_HI_RM,
-    S_HI_S,
-    S_HI_W,
-    S_K_MAG_INIT,
-    S_K_MAG_USED,
-    S_MAG_CNT,
-    S_MAG_DIS,
-    S_MAG_DIST,
-    S_MAG_REF_DIP,
-    S_MAG_REF_NORM,
-    S_MAG_REJECT_T,
-    S_MAG_UNDIST_T,
-    S_MN,
-    S_MSUM,
-    S_P,
-    S_P_HEAD,
-    S_QA,
-    S_QG,
-    S_RA,
-    S_REST,
-    S_REST_T,
-    S_RG,
-    S_RG_OUT,
-    S_RLP,
-    S_ROT2,
-    S_SD,
-)
+from gnomon.kernels import linalg, quat
+
+__all__ = ["LowPass", "Coefficients", "coefficients", "butter2", "STATE", "LOWPASS_2",
+           "LOWPASS_3", "LOWPASS_33", "HARD_IRON", "new_state", "robust_ahrs_step",
+           "robust_ahrs_batch", "ACC_SKIPPED", "MAG_SKIPPED", "GAP"]
+
+# flag bits returned by the step (``flags`` signal of ``run``)
+ACC_SKIPPED = 1
+MAG_SKIPPED = 2
+GAP = 4
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _lp(s, off, n, x, out, c, coff, tau, ts):
-    """Second-order low-pass of ``x[:n]`` into ``out[:n]``; state ``s[off : off + 2n + 1]``.
+# ---------------------------------------------------------------- coefficients
+class LowPass(NamedTuple):
+    """A second-order Butterworth low-pass ``y = (b0 + b1 z⁻¹ + b2 z⁻²) / (1 + a1 z⁻¹ +
+    a2 z⁻²) x`` that starts as a running mean for its first ``tau_s`` seconds (sample
+    time ``ts_s``)."""
 
-    For the first ``tau`` seconds the output is the running mean (the count is
-    ``s[off + 2n]``, the sums ``s[off : off + n]``); then the filter starts in the
-    steady state of that mean (count set to -1).
+    b0: float
+    b1: float
+    b2: float
+    a1: float
+    a2: float
+    tau_s: float
+    ts_s: float
+
+
+class Coefficients(NamedTuple):
+    """Everything the step needs that does not evolve, derived once from the parameters
+    and the nominal sample time (``coefficients``). Angles in rad, rates in rad/s."""
+
+    ts_s: float  # nominal sample time
+    max_dt_s: float  # longer intervals are gaps (gyro only)
+    # rest detection
+    rest_bias: bool
+    rest_lp: LowPass
+    rest_th_gyro2: float  # (rad/s)², on |ω - lp(ω)|²
+    rest_th_acc2: float  # (m/s²)², on |a - lp(a)|²
+    rest_min_s: float
+    # inclination
+    acc_lp: LowPass  # the accelerometer in frame I
+    # gyro-bias Kalman filter, run on every bias_every-th accelerometer sample
+    motion_bias: bool
+    bias_every: int
+    bias_lp: LowPass  # R_6b and R_6b b, sample time ts_s * bias_every
+    bias_p0: float  # (rad/s)²: the variance stops growing there
+    bias_v: float  # (rad/s)² per bias update: process noise
+    w_rest: float  # (rad/s)²: measurement variances
+    w_motion: float
+    w_vertical: float
+    bias_clip: float  # rad/s: bound on the bias and its innovations
+    # magnetometer, the heading filter run on the mean field of every mag_every samples
+    mag_every: int
+    ts_mag: float  # ts_s * mag_every
+    hi_lambda: float  # hard-iron window: forgetting factor per heading update (0: off)
+    hi_reg: float
+    hi_gate: float
+    mag_rejection: bool
+    mag_lp: LowPass  # the field's norm and dip
+    k_mag_ref: float  # gain of the learned reference (norm, dip) per heading update
+    mag_norm_th: float  # relative
+    mag_dip_th: float  # rad
+    mag_new_s: float
+    mag_new_first_s: float
+    mag_new_min_gyro2: float  # (rad/s)²
+    mag_min_undisturbed_s: float
+    mag_max_reject_s: float
+    mag_reject_factor: float
+    soft_norm: float  # 1 / mag_soft_norm² (0: off)
+    soft_dip: float  # 1 / mag_soft_dip² (1/rad², 0: off)
+    # heading
+    tau_mag_s: float
+    k_mag: float  # first-order gain per heading update
+    heading_kf: bool
+    r_head: float  # heading KF: measurement variance, random walk per update, per |ω|² dt
+    q_head: float
+    q_rate: float
+    k_mag_bias: float  # 1/s: heading-rate bias loop (0: off)
+
+
+def butter2(tau_s: float, ts_s: float) -> np.ndarray:
+    """Second-order Butterworth low-pass ``[b0, b1, b2, a1, a2]`` (bilinear transform).
+
+    Cutoff ``fc = √2 / (2π τ)`` (``τ`` is the time constant of the non-oscillating part
+    of the step response). A cutoff at or above 0.45·fs gives the identity filter.
     """
-    cnt = s[off + 2 * n]
-    b0 = c[coff]
-    b1 = c[coff + 1]
-    b2 = c[coff + 2]
-    a1 = c[coff + 3]
-    a2 = c[coff + 4]
-    if cnt >= 0.0:
-        cnt += 1.0
-        for i in range(n):
-            s[off + i] += x[i]
-            out[i] = s[off + i] / cnt
-        if cnt * ts >= tau:
-            for i in range(n):
-                y = out[i]
-                s[off + i] = y * (1.0 - b0)
-                s[off + n + i] = y * (b2 - a2)
-            cnt = -1.0
-        s[off + 2 * n] = cnt
-        return
-    for i in range(n):
-        xi = x[i]
-        y = b0 * xi + s[off + i]
-        s[off + i] = b1 * xi - a1 * y + s[off + n + i]
-        s[off + n + i] = b2 * xi - a2 * y
-        out[i] = y
+    fc = math.sqrt(2.0) / (2.0 * math.pi * tau_s) if tau_s > 0 else math.inf
+    if fc * ts_s >= 0.45:
+        return np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+    c = math.tan(math.pi * fc * ts_s)
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    b0 = c * c / d
+    a2 = (1.0 - math.sqrt(2.0) * c + c * c) / d
+    return np.array([b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, a2])
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _qmul_into(s, o, pw, px, py, pz):
-    """``s[o:o+4] <- normalise([pw,px,py,pz] ⊗ s[o:o+4])``."""
-    w, x, y, z = s[o], s[o + 1], s[o + 2], s[o + 3]
-    nw = pw * w - px * x - py * y - pz * z
-    nx = pw * x + px * w + py * z - pz * y
-    ny = pw * y - px * z + py * w + pz * x
-    nz = pw * z + px * y - py * x + pz * w
-    k = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    s[o] = nw * k
-    s[o + 1] = nx * k
-    s[o + 2] = ny * k
-    s[o + 3] = nz * k
+def _lowpass(tau_s: float, ts_s: float) -> LowPass:
+    return LowPass(*(float(b) for b in butter2(tau_s, ts_s)), float(tau_s), float(ts_s))
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _q6_dcm(s, d6):
-    """``d6[0:4] <- q_6b = q_acc ⊗ q_gyr``, ``d6[4:13] <- R_6b`` (row-major)."""
-    pw, px, py, pz = s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3]
-    w, x, y, z = s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
-    qw = pw * w - px * x - py * y - pz * z
-    qx = pw * x + px * w + py * z - pz * y
-    qy = pw * y - px * z + py * w + pz * x
-    qz = pw * z + px * y - py * x + pz * w
-    d6[0] = qw
-    d6[1] = qx
-    d6[2] = qy
-    d6[3] = qz
-    d6[4] = 1.0 - 2.0 * (qy * qy + qz * qz)
-    d6[5] = 2.0 * (qx * qy - qw * qz)
-    d6[6] = 2.0 * (qx * qz + qw * qy)
-    d6[7] = 2.0 * (qx * qy + qw * qz)
-    d6[8] = 1.0 - 2.0 * (qx * qx + qz * qz)
-    d6[9] = 2.0 * (qy * qz - qw * qx)
-    d6[10] = 2.0 * (qx * qz - qw * qy)
-    d6[11] = 2.0 * (qy * qz + qw * qx)
-    d6[12] = 1.0 - 2.0 * (qx * qx + qy * qy)
+def _gain(tau_s: float, ts_s: float) -> float:
+    """First-order filter gain ``1 - exp(-ts/τ)`` (τ = 0: 1)."""
+    return 1.0 if tau_s <= 0 else 1.0 - math.exp(-ts_s / tau_s)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _hard_iron_solve(s, reg, gate, tmp):
-    """``o = (w²(1+reg) I - SᵀS)⁻¹ (w M - Sᵀ RM)`` into ``s[S_HI_O]`` (least squares of
-    ``R m = h + R o`` over the weighted window with the prior ``reg·w |o|²``)."""
-    w = s[S_HI_W]
-    d = w * w * (1.0 + reg)
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += s[S_HI_S + 3 * k + i] * s[S_HI_S + 3 * k + j]
-            tmp[3 * i + j] = (d if i == j else 0.0) - acc
-    r0 = w * s[S_HI_M] - (s[S_HI_S] * s[S_HI_RM] + s[S_HI_S + 3] * s[S_HI_RM + 1]
-                          + s[S_HI_S + 6] * s[S_HI_RM + 2])
-    r1 = w * s[S_HI_M + 1] - (s[S_HI_S + 1] * s[S_HI_RM] + s[S_HI_S + 4] * s[S_HI_RM + 1]
-                              + s[S_HI_S + 7] * s[S_HI_RM + 2])
-    r2 = w * s[S_HI_M + 2] - (s[S_HI_S + 2] * s[S_HI_RM] + s[S_HI_S + 5] * s[S_HI_RM + 1]
-                              + s[S_HI_S + 8] * s[S_HI_RM + 2])
-    a, b, cc = tmp[0], tmp[1], tmp[2]
-    dd, e, f = tmp[3], tmp[4], tmp[5]
-    g, hh, i_ = tmp[6], tmp[7], tmp[8]
-    c0 = e * i_ - f * hh
-    c1 = -(dd * i_ - f * g)
-    c2 = dd * hh - e * g
-    det = a * c0 + b * c1 + cc * c2
-    if det <= 0.0:
-        return
-    inv = 1.0 / det
-    o0 = (c0 * r0 - (b * i_ - cc * hh) * r1 + (b * f - cc * e) * r2) * inv
-    o1 = (c1 * r0 + (a * i_ - cc * g) * r1 - (a * f - cc * dd) * r2) * inv
-    o2 = (c2 * r0 - (a * hh - b * g) * r1 + (a * e - b * dd) * r2) * inv
-    # residual energy of the fit with the offset (E1) and without it (E0, h = mean of R m)
-    rm0, rm1, rm2 = s[S_HI_RM], s[S_HI_RM + 1], s[S_HI_RM + 2]
-    e0 = s[S_HI_MM] - (rm0 * rm0 + rm1 * rm1 + rm2 * rm2) / w
-    h0 = (rm0 - (s[S_HI_S] * o0 + s[S_HI_S + 1] * o1 + s[S_HI_S + 2] * o2)) / w
-    h1 = (rm1 - (s[S_HI_S + 3] * o0 + s[S_HI_S + 4] * o1 + s[S_HI_S + 5] * o2)) / w
-    h2 = (rm2 - (s[S_HI_S + 6] * o0 + s[S_HI_S + 7] * o1 + s[S_HI_S + 8] * o2)) / w
-    e1 = s[S_HI_MM] - (h0 * rm0 + h1 * rm1 + h2 * rm2) - (o0 * s[S_HI_M] + o1 * s[S_HI_M + 1]
-                                                          + o2 * s[S_HI_M + 2])
-    if e1 < gate * e0:  # the offset explains most of the field's variation in frame 6
-        s[S_HI_O] = o0
-        s[S_HI_O + 1] = o1
-        s[S_HI_O + 2] = o2
+def coefficients(p, ts_s: float) -> Coefficients:
+    """The step's coefficients for the parameters ``p`` (a ``RobustAHRSParams``) and the
+    nominal sample time ``ts_s`` (s)."""
+    d2r = math.pi / 180.0
+    ts_s = float(ts_s)
+    tsm = ts_s * p.mag_every  # the heading filter's interval
+    ts_b = ts_s * p.bias_every  # the bias filter's interval
+    # bias process noise: the variance grows by (0.1 deg/s)² in bias_forgetting_s; the
+    # measurement variances make the steady-state std the stated sigma
+    bias_v = (0.1 * d2r) ** 2 * ts_b / p.bias_forgetting_s
+    pm = (p.bias_sigma_motion_deg_s * d2r) ** 2
+    pr = (p.bias_sigma_rest_deg_s * d2r) ** 2
+    w_motion = pm * pm / bias_v + pm
+    # heading KF in units where the heading variance grows at rate 1 (per s) at rest: the
+    # measurement variance per update is tau_mag² / tsm (steady-state time constant
+    # tau_mag), the random walk per update makes the steady-state gain exactly k_mag
+    k_mag = _gain(p.tau_mag_s, tsm)
+    r_head = p.tau_mag_s ** 2 / tsm if p.tau_mag_s > 0 else 1.0
+    new_gyro = p.mag_new_min_gyro_deg_s * d2r
+    return Coefficients(
+        ts_s=ts_s, max_dt_s=float(p.max_dt_s),
+        rest_bias=bool(p.rest_bias), rest_lp=_lowpass(p.rest_tau_s, ts_s),
+        rest_th_gyro2=(p.rest_th_gyro_deg_s * d2r) ** 2, rest_th_acc2=p.rest_th_acc_m_s2 ** 2,
+        rest_min_s=float(p.rest_min_s),
+        acc_lp=_lowpass(p.tau_acc_s, ts_s),
+        motion_bias=bool(p.motion_bias), bias_every=int(p.bias_every),
+        bias_lp=_lowpass(p.tau_acc_s, ts_b),
+        bias_p0=(p.bias_sigma_init_deg_s * d2r) ** 2, bias_v=bias_v,
+        w_rest=pr * pr / bias_v + pr, w_motion=w_motion,
+        w_vertical=w_motion / p.bias_vertical_forgetting, bias_clip=p.bias_clip_deg_s * d2r,
+        mag_every=int(p.mag_every), ts_mag=tsm,
+        hi_lambda=math.exp(-tsm / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0,
+        hi_reg=float(p.hard_iron_reg), hi_gate=float(p.hard_iron_gate),
+        mag_rejection=bool(p.mag_rejection), mag_lp=_lowpass(p.mag_current_tau_s, tsm),
+        k_mag_ref=_gain(p.mag_ref_tau_s, tsm), mag_norm_th=float(p.mag_norm_th),
+        mag_dip_th=p.mag_dip_th_deg * d2r, mag_new_s=float(p.mag_new_s),
+        mag_new_first_s=float(p.mag_new_first_s), mag_new_min_gyro2=new_gyro * new_gyro,
+        mag_min_undisturbed_s=float(p.mag_min_undisturbed_s),
+        mag_max_reject_s=float(p.mag_max_reject_s),
+        mag_reject_factor=float(p.mag_reject_factor),
+        soft_norm=1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0,
+        soft_dip=1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0,
+        tau_mag_s=float(p.tau_mag_s), k_mag=k_mag, heading_kf=bool(p.heading_kf),
+        r_head=r_head, q_head=r_head * k_mag * k_mag / (1.0 - k_mag) if k_mag < 1.0 else 1e12,
+        q_rate=p.heading_rate_noise_s ** 2, k_mag_bias=float(p.mag_bias_gain_per_s),
+    )
+
+
+# ---------------------------------------------------------------- state
+def _lowpass_state(shape) -> np.dtype:
+    """State of a ``LowPass`` of values of ``shape``: ``z0``, ``z1`` (the direct form II
+    transposed; during the start-up ``z0`` holds the running sum) and ``n``, the number of
+    samples in the running mean (-1 once the filter runs)."""
+    return np.dtype([("z0", np.float64, shape), ("z1", np.float64, shape), ("n", np.int64)],
+                    align=True)
+
+
+LOWPASS_2 = _lowpass_state((2,))
+LOWPASS_3 = _lowpass_state((3,))
+LOWPASS_33 = _lowpass_state((3, 3))
+
+#: Exponentially weighted sums of the hard-iron fit (``hard_iron``) and the offset in use.
+HARD_IRON = np.dtype([
+    ("w", np.float64),  # Σ 1
+    ("S", np.float64, (3, 3)),  # Σ R_6b
+    ("rm", np.float64, (3,)),  # Σ R_6b m (the raw field)
+    ("m", np.float64, (3,)),  # Σ m
+    ("mm", np.float64),  # Σ |m|²
+    ("o", np.float64, (3,)),  # the offset in use (body, magnetometer unit; 0: none)
+    ("block_m", np.float64, (3,)),  # Σ m, Σ |m|² over the current block of mag_every
+    ("block_mm", np.float64),
+], align=True)
+
+#: The filter's evolving state (one record; see the module docstring for the frames). The
+#: dtypes are aligned (``align=True``: padding after the booleans), so that numba reads every
+#: float at its natural alignment.
+STATE = np.dtype([
+    ("q_gyr", np.float64, (4,)),  # q_Ib: strapdown of the bias-corrected gyro
+    ("q_acc", np.float64, (4,)),  # q_6I: inclination correction
+    ("delta", np.float64),  # rad: heading of frame 6 in ENU, q_n6 = q_z(delta)
+    ("cos_half_delta", np.float64),
+    ("sin_half_delta", np.float64),
+    ("bias", np.float64, (3,)),  # rad/s, body
+    ("P", np.float64, (3, 3)),  # (rad/s)²: bias covariance
+    # rest detection
+    ("rest_gyro_lp", LOWPASS_3),
+    ("gyro_lp", np.float64, (3,)),  # rad/s: its output (the rest-phase bias measurement)
+    ("rest_acc_lp", LOWPASS_3),
+    ("rest_t", np.float64),  # s spent within the thresholds
+    ("rest", np.bool_),
+    # inclination and bias in motion
+    ("acc_lp", LOWPASS_3),  # m/s², frame I
+    ("acc_rate", np.float64),  # rad/s: sine of the last correction angle / ts
+    ("bias_count", np.int64),  # accelerometer samples since the last bias update, mod k
+    ("bias_R_lp", LOWPASS_33),  # R_6b
+    ("bias_Rb_lp", LOWPASS_2),  # (R_6b b)_xy
+    # magnetometer
+    ("mag_sum", np.float64, (3,)),  # Σ R_6b (m - o) over the current block
+    ("mag_count", np.int64),
+    ("mag_lp", LOWPASS_2),  # norm, dip (rad) of the mean field in frame 6
+    ("mag_ref_norm", np.float64),  # learned reference (0: none yet)
+    ("mag_ref_dip", np.float64),
+    ("mag_undisturbed_t", np.float64),
+    ("mag_reject_t", np.float64),
+    ("mag_disturbed", np.bool_),
+    ("cand_norm", np.float64),  # a candidate new field, and how long it held in motion
+    ("cand_dip", np.float64),
+    ("cand_t", np.float64),
+    ("k_mag_init", np.float64),  # running-mean gain at start (0 once over)
+    ("k_mag_used", np.float64),  # heading gain of the last update (0 while rejected)
+    ("mag_dis", np.float64),  # rad: the last heading disagreement
+    ("p_head", np.float64),  # heading variance (units: see Coefficients)
+    ("rot2", np.float64),  # ∫|ω - b|² dt since the last heading update, rad²/s
+    ("hard_iron", HARD_IRON),
+], align=True)
+
+
+def new_state(p) -> np.ndarray:
+    """A fresh state for the parameters ``p``: an array of one ``STATE`` record."""
+    state = np.zeros(1, STATE)
+    s = state[0]
+    s["q_gyr"][0] = 1.0
+    s["q_acc"][0] = 1.0
+    s["cos_half_delta"] = 1.0
+    s["P"] = np.eye(3) * (p.bias_sigma_init_deg_s * math.pi / 180.0) ** 2
+    s["mag_disturbed"] = True
+    s["mag_reject_t"] = p.mag_max_reject_s
+    s["cand_norm"] = -1.0
+    s["k_mag_init"] = 1.0
+    s["p_head"] = 1e6
+    return state
+
+
+# ---------------------------------------------------------------- low-pass filters
+@njit(inline="always")
+def _mean_step(f, i, x, n, done, lp):
+    """Start-up of a low-pass: the running mean of component ``i``; ``done``: the mean
+    becomes the filter's steady state."""
+    f.z0[i] += x
+    y = f.z0[i] / n
+    if done:
+        f.z0[i] = y * (1.0 - lp.b0)
+        f.z1[i] = y * (lp.b2 - lp.a2)
+    return y
+
+
+@njit(inline="always")
+def _filter_step(f, i, x, lp):
+    """One Butterworth step of component ``i`` (direct form II transposed)."""
+    y = lp.b0 * x + f.z0[i]
+    f.z0[i] = lp.b1 * x - lp.a1 * y + f.z1[i]
+    f.z1[i] = lp.b2 * x - lp.a2 * y
+    return y
+
+
+@njit(inline="always")
+def _start(f, lp):
+    """Count one start-up sample: ``(n, done)``."""
+    n = f.n + 1
+    done = n * lp.ts_s >= lp.tau_s
+    f.n = -1 if done else n
+    return n, done
+
+
+@njit(inline="always")
+def lowpass2(f, x0, x1, lp):
+    """``LowPass`` ``lp`` of two values, state ``f`` (``LOWPASS_2``): the outputs."""
+    if f.n >= 0:
+        n, done = _start(f, lp)
+        return _mean_step(f, 0, x0, n, done, lp), _mean_step(f, 1, x1, n, done, lp)
+    return _filter_step(f, 0, x0, lp), _filter_step(f, 1, x1, lp)
+
+
+@njit(inline="always")
+def lowpass3(f, x0, x1, x2, lp):
+    """``LowPass`` ``lp`` of a 3-vector, state ``f`` (``LOWPASS_3``): the outputs."""
+    if f.n >= 0:
+        n, done = _start(f, lp)
+        return (_mean_step(f, 0, x0, n, done, lp), _mean_step(f, 1, x1, n, done, lp),
+                _mean_step(f, 2, x2, n, done, lp))
+    return _filter_step(f, 0, x0, lp), _filter_step(f, 1, x1, lp), _filter_step(f, 2, x2, lp)
+
+
+@njit(inline="always")
+def lowpass33(f, a, lp):
+    """``LowPass`` ``lp`` of a 3x3 matrix (row-major 9-tuple ``a``), state ``f``
+    (``LOWPASS_33``): the output as a 9-tuple."""
+    if f.n >= 0:
+        n, done = _start(f, lp)
+        return (_mean_step(f, (0, 0), a[0], n, done, lp),
+                _mean_step(f, (0, 1), a[1], n, done, lp),
+                _mean_step(f, (0, 2), a[2], n, done, lp),
+                _mean_step(f, (1, 0), a[3], n, done, lp),
+                _mean_step(f, (1, 1), a[4], n, done, lp),
+                _mean_step(f, (1, 2), a[5], n, done, lp),
+                _mean_step(f, (2, 0), a[6], n, done, lp),
+                _mean_step(f, (2, 1), a[7], n, done, lp),
+                _mean_step(f, (2, 2), a[8], n, done, lp))
+    return (_filter_step(f, (0, 0), a[0], lp), _filter_step(f, (0, 1), a[1], lp),
+            _filter_step(f, (0, 2), a[2], lp), _filter_step(f, (1, 0), a[3], lp),
+            _filter_step(f, (1, 1), a[4], lp), _filter_step(f, (1, 2), a[5], lp),
+            _filter_step(f, (2, 0), a[6], lp), _filter_step(f, (2, 1), a[7], lp),
+            _filter_step(f, (2, 2), a[8], lp))
+
+
+@njit(inline="always")
+def wrap(a):
+    """An angle difference (rad, within (-3π, 3π)) wrapped into [-π, π]."""
+    if a > math.pi:
+        return a - 2.0 * math.pi
+    if a < -math.pi:
+        return a + 2.0 * math.pi
+    return a
+
+
+# ---------------------------------------------------------------- 1. rest detection
+@njit(inline="always")
+def rest_gyro(s, c, gx, gy, gz):
+    """Gyro part of the rest detection: low-pass the rate (kept in ``s.gyro_lp``, the bias
+    measurement at rest); a deviation above the threshold, or a low-passed rate beyond
+    the bias bound, ends a rest phase."""
+    lx, ly, lz = lowpass3(s.rest_gyro_lp, gx, gy, gz, c.rest_lp)
+    s.gyro_lp[0], s.gyro_lp[1], s.gyro_lp[2] = lx, ly, lz
+    dx, dy, dz = gx - lx, gy - ly, gz - lz
+    big = max(abs(lx), max(abs(ly), abs(lz)))
+    if dx * dx + dy * dy + dz * dz >= c.rest_th_gyro2 or big > c.bias_clip:
+        s.rest_t = 0.0
+        s.rest = False
+
+
+@njit(inline="always")
+def rest_acc(s, c, ax, ay, az):
+    """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
+    threshold of the low-passed specific force."""
+    lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_lp)
+    dx, dy, dz = ax - lx, ay - ly, az - lz
+    if dx * dx + dy * dy + dz * dz >= c.rest_th_acc2:
+        s.rest_t = 0.0
+        s.rest = False
     else:
-        s[S_HI_O] = 0.0
-        s[S_HI_O + 1] = 0.0
-        s[S_HI_O + 2] = 0.0
+        s.rest_t += c.ts_s
+        if s.rest_t >= c.rest_min_s:
+            s.rest = True
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _dcm(q, r):
-    """Row-major 3x3 rotation matrix of unit quaternion ``q`` into ``r[:9]``."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    r[0] = 1.0 - 2.0 * (y * y + z * z)
-    r[1] = 2.0 * (x * y - w * z)
-    r[2] = 2.0 * (x * z + w * y)
-    r[3] = 2.0 * (x * y + w * z)
-    r[4] = 1.0 - 2.0 * (x * x + z * z)
-    r[5] = 2.0 * (y * z - w * x)
-    r[6] = 2.0 * (x * z - w * y)
-    r[7] = 2.0 * (y * z + w * x)
-    r[8] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _clip(v, lim):
-    return lim if v > lim else (-lim if v < -lim else v)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _bias_update(s, c, h, e0, e1, e2, w0, w1, w2, clip, k33, tmp):
-    """Kalman update of the bias with measurement ``e = y - H b`` (``H`` row-major in ``h``).
-
-    ``K = P Hᵀ (W + H P Hᵀ)⁻¹``, ``b += K e``, ``P -= K H P``; ``e`` and ``b`` clipped.
-    """
-    e0 = _clip(e0, clip)
-    e1 = _clip(e1, clip)
-    e2 = _clip(e2, clip)
-    # PHt = P Hᵀ (3x3), S = H PHt + W
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += s[S_P + 3 * i + k] * h[3 * j + k]
-            tmp[3 * i + j] = acc
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += h[3 * i + k] * tmp[3 * k + j]
-            k33[3 * i + j] = acc
-    k33[0] += w0
-    k33[4] += w1
-    k33[8] += w2
-    # inverse of S by cofactors into tmp[9:18]
-    a, b, cc = k33[0], k33[1], k33[2]
-    d, e, f = k33[3], k33[4], k33[5]
-    g, hh, i_ = k33[6], k33[7], k33[8]
-    c0 = e * i_ - f * hh
-    c1 = -(d * i_ - f * g)
-    c2 = d * hh - e * g
-    det = a * c0 + b * c1 + cc * c2
-    inv = 1.0 / det
-    tmp[9] = c0 * inv
-    tmp[10] = -(b * i_ - cc * hh) * inv
-    tmp[11] = (b * f - cc * e) * inv
-    tmp[12] = c1 * inv
-    tmp[13] = (a * i_ - cc * g) * inv
-    tmp[14] = -(a * f - cc * d) * inv
-    tmp[15] = c2 * inv
-    tmp[16] = -(a * hh - b * g) * inv
-    tmp[17] = (a * e - b * d) * inv
-    # K = PHt S⁻¹ into k33
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += tmp[3 * i + k] * tmp[9 + 3 * k + j]
-            k33[3 * i + j] = acc
-    for i in range(3):
-        v = s[S_BIAS + i] + k33[3 * i] * e0 + k33[3 * i + 1] * e1 + k33[3 * i + 2] * e2
-        s[S_BIAS + i] = _clip(v, clip)
-    # P -= K H P = K (P Hᵀ)ᵀ (P symmetric); P Hᵀ is still in tmp[0:9]
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += k33[3 * i + k] * tmp[3 * j + k]
-            tmp[9 + 3 * i + j] = acc
-    for i in range(9):
-        s[S_P + i] -= tmp[9 + i]
-    # keep P symmetric (the short form above lets rounding asymmetry grow over 1e6+ updates)
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        m = 0.5 * (s[S_P + 3 * i + j] + s[S_P + 3 * j + i])
-        s[S_P + 3 * i + j] = m
-        s[S_P + 3 * j + i] = m
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz, v, r, h, k33, tmp, q):
-    """One sample, in place on the state ``s``; scratch arrays ``v`` (9), ``r`` (9), ``h`` (9),
-    ``k33`` (9), ``tmp`` (18), ``q`` (13: on return ``q_6b`` and ``R_6b``, see ``_q6_dcm``).
-    Returns flag bits: 1 accelerometer skipped, 2 magnetometer skipped, 4 gap."""
-    ts = c[C_TS]
-    flags = 0
-    rest_on = c[C_REST_BIAS] != 0.0
-    reject_on = c[C_MAG_REJECT] != 0.0
-    clip = c[C_BIAS_CLIP]
-    # ---- rest detection, gyro part
-    if rest_on or reject_on:
-        v[0] = gx
-        v[1] = gy
-        v[2] = gz
-        _lp(s, S_RG, 3, v, r, c, C_REST_LP, c[C_TAU_REST], ts)
-        s[S_RG_OUT] = r[0]
-        s[S_RG_OUT + 1] = r[1]
-        s[S_RG_OUT + 2] = r[2]
-        d0 = gx - r[0]
-        d1 = gy - r[1]
-        d2 = gz - r[2]
-        big = max(abs(r[0]), max(abs(r[1]), abs(r[2])))
-        if d0 * d0 + d1 * d1 + d2 * d2 >= c[C_REST_TH_GYRO2] or big > clip:
-            s[S_REST_T] = 0.0
-            s[S_REST] = 0.0
-    # ---- strapdown integration of the bias-corrected gyro (almost-inertial frame)
+# ---------------------------------------------------------------- 2. strapdown
+@njit(inline="always")
+def strapdown(s, dt, gx, gy, gz):
+    """``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` over the actual interval ``dt`` (s); adds
+    ``|ω - b|² dt`` to ``s.rot2`` (the heading KF's rotation noise)."""
     if dt > 0.0:
-        wx = (gx - s[S_BIAS]) * dt
-        wy = (gy - s[S_BIAS + 1]) * dt
-        wz = (gz - s[S_BIAS + 2]) * dt
-        th2 = wx * wx + wy * wy + wz * wz
-        s[S_ROT2] += th2 / dt
+        rx = (gx - s.bias[0]) * dt
+        ry = (gy - s.bias[1]) * dt
+        rz = (gz - s.bias[2]) * dt
+        th2 = rx * rx + ry * ry + rz * rz
+        s.rot2 += th2 / dt
         if th2 > 0.0:
-            if th2 < 0.0025:
-                # |θ| < 0.05 rad: Taylor series of cos(θ/2) and sin(θ/2)/θ to θ⁸ (first
-                # omitted terms < 1e-22: equal to the trigonometric form in double precision)
-                cw = 1.0 - th2 * (1.0 / 8.0 - th2 * (1.0 / 384.0 - th2 * (
-                    1.0 / 46080.0 - th2 / 10321920.0)))
-                k = 0.5 - th2 * (1.0 / 48.0 - th2 * (1.0 / 3840.0 - th2 * (
-                    1.0 / 645120.0 - th2 / 185794560.0)))
-            else:
-                th = math.sqrt(th2)
-                cw = math.cos(0.5 * th)
-                k = math.sin(0.5 * th) / th
-            # q_gyr <- q_gyr ⊗ exp(w dt): right multiplication
-            w, x, y, z = s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
-            px, py, pz = k * wx, k * wy, k * wz
-            nw = w * cw - x * px - y * py - z * pz
-            nx = w * px + x * cw + y * pz - z * py
-            ny = w * py - x * pz + y * cw + z * px
-            nz = w * pz + x * py - y * px + z * cw
-            kn = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-            s[S_QG] = nw * kn
-            s[S_QG + 1] = nx * kn
-            s[S_QG + 2] = ny * kn
-            s[S_QG + 3] = nz * kn
-    if dt > c[C_MAX_DT]:
-        _q6_dcm(s, q)
-        return 4
-    # ---- accelerometer
-    na2 = ax * ax + ay * ay + az * az
-    if na2 > 0.0:
-        if rest_on:
-            v[0] = ax
-            v[1] = ay
-            v[2] = az
-            _lp(s, S_RA, 3, v, r, c, C_REST_LP, c[C_TAU_REST], ts)
-            d0 = ax - r[0]
-            d1 = ay - r[1]
-            d2 = az - r[2]
-            if d0 * d0 + d1 * d1 + d2 * d2 >= c[C_REST_TH_ACC2]:
-                s[S_REST_T] = 0.0
-                s[S_REST] = 0.0
-            else:
-                s[S_REST_T] += ts
-                if s[S_REST_T] >= c[C_REST_MIN]:
-                    s[S_REST] = 1.0
-        # specific force in the almost-inertial frame, low-pass filtered there
-        w, x, y, z = s[S_QG], s[S_QG + 1], s[S_QG + 2], s[S_QG + 3]
-        v[0] = (1.0 - 2.0 * (y * y + z * z)) * ax + 2.0 * (x * y - w * z) * ay \
-            + 2.0 * (x * z + w * y) * az
-        v[1] = 2.0 * (x * y + w * z) * ax + (1.0 - 2.0 * (x * x + z * z)) * ay \
-            + 2.0 * (y * z - w * x) * az
-        v[2] = 2.0 * (x * z - w * y) * ax + 2.0 * (y * z + w * x) * ay \
-            + (1.0 - 2.0 * (x * x + y * y)) * az
-        _lp(s, S_ALP, 3, v, r, c, C_ACC_LP, c[C_TAU_ACC], ts)
-        # into the inclination-corrected frame, normalised
-        w, x, y, z = s[S_QA], s[S_QA + 1], s[S_QA + 2], s[S_QA + 3]
-        fx = (1.0 - 2.0 * (y * y + z * z)) * r[0] + 2.0 * (x * y - w * z) * r[1] \
-            + 2.0 * (x * z + w * y) * r[2]
-        fy = 2.0 * (x * y + w * z) * r[0] + (1.0 - 2.0 * (x * x + z * z)) * r[1] \
-            + 2.0 * (y * z - w * x) * r[2]
-        fz = 2.0 * (x * z - w * y) * r[0] + 2.0 * (y * z + w * x) * r[1] \
-            + (1.0 - 2.0 * (x * x + y * y)) * r[2]
-        nf = math.sqrt(fx * fx + fy * fy + fz * fz)
-        if nf > 0.0:
-            fx /= nf
-            fy /= nf
-            fz /= nf
-            # rotation taking f onto up [0, 0, 1], applied on the left of q_acc
-            cw = math.sqrt(max(0.5 * (fz + 1.0), 0.0))
-            if cw > 1e-6:
-                _qmul_into(s, S_QA, cw, 0.5 * fy / cw, -0.5 * fx / cw, 0.0)
-            else:
-                _qmul_into(s, S_QA, 0.0, 1.0, 0.0, 0.0)
-            # sine of the correction angle per unit time (= the rate for small corrections)
-            s[S_ACC_RATE] = math.sqrt(fx * fx + fy * fy) / ts
-        _q6_dcm(s, q)
-        # ---- gyro bias: Kalman filter in rest (H = I) and in motion (inclination residual)
-        run_bias = s[S_BIAS_CNT] == 0.0
-        s[S_BIAS_CNT] = (s[S_BIAS_CNT] + 1.0) % c[C_BIAS_EVERY]
-        if (rest_on or c[C_MOTION_BIAS] != 0.0) and run_bias:
-            ts_b = c[C_TS_BIAS]
-            for i in range(9):
-                h[i] = q[4 + i]
-            b0, b1, b2 = s[S_BIAS], s[S_BIAS + 1], s[S_BIAS + 2]
-            v[0] = h[0] * b0 + h[1] * b1 + h[2] * b2
-            v[1] = h[3] * b0 + h[4] * b1 + h[5] * b2
-            _lp(s, S_RLP, 9, h, r, c, C_BIAS_LP, c[C_TAU_ACC], ts_b)
-            for i in range(9):
-                h[i] = r[i]
-            _lp(s, S_BLP, 2, v, r, c, C_BIAS_LP, c[C_TAU_ACC], ts_b)
-            p0 = c[C_BIAS_P0]
-            for i in range(3):
-                if s[S_P + 4 * i] < p0:
-                    s[S_P + 4 * i] += c[C_BIAS_V]
-            if rest_on and s[S_REST] != 0.0:
-                for i in range(9):
-                    h[i] = 0.0
-                h[0] = 1.0
-                h[4] = 1.0
-                h[8] = 1.0
-                wr = c[C_W_REST]
-                _bias_update(s, c, h, s[S_RG_OUT] - b0, s[S_RG_OUT + 1] - b1,
-                             s[S_RG_OUT + 2] - b2, wr, wr, wr, clip, k33, tmp)
-            elif c[C_MOTION_BIAS] != 0.0 and nf > 0.0:
-                e0 = -fy / ts + r[0] - (h[0] * b0 + h[1] * b1 + h[2] * b2)
-                e1 = fx / ts + r[1] - (h[3] * b0 + h[4] * b1 + h[5] * b2)
-                e2 = -(h[6] * b0 + h[7] * b1 + h[8] * b2)
-                wm = c[C_W_MOTION]
-                _bias_update(s, c, h, e0, e1, e2, wm, wm, c[C_W_VERTICAL], clip, k33, tmp)
-    else:
-        flags |= 1
-        _q6_dcm(s, q)
-    # ---- magnetometer: heading only
-    nm2 = mx * mx + my * my + mz * mz
-    run_mag = False
-    if nm2 > 0.0:
-        if c[C_HI_LAMBDA] > 0.0:
-            # hard-iron block sums of the raw field (the weighted sums are updated per block)
-            s[S_HI_BM] += mx
-            s[S_HI_BM + 1] += my
-            s[S_HI_BM + 2] += mz
-            s[S_HI_BMM] += nm2
-            mx -= s[S_HI_O]
-            my -= s[S_HI_O + 1]
-            mz -= s[S_HI_O + 2]
-        # field in frame 6, averaged over mag_every samples (the first sample at once)
-        s[S_MSUM] += q[4] * mx + q[5] * my + q[6] * mz
-        s[S_MSUM + 1] += q[7] * mx + q[8] * my + q[9] * mz
-        s[S_MSUM + 2] += q[10] * mx + q[11] * my + q[12] * mz
-        s[S_MAG_CNT] += 1.0
-        run_mag = s[S_MAG_CNT] >= c[C_MAG_EVERY] or s[S_K_MAG_INIT] == 1.0
-    if nm2 > 0.0 and not run_mag:
-        pass  # accumulating: the heading filter runs on every mag_every-th sample
-    elif nm2 > 0.0:
-        tsm = c[C_TS_MAG]
-        soft = 1.0
-        cnt = s[S_MAG_CNT]
-        inv = 1.0 / cnt
-        ex = s[S_MSUM] * inv
-        ey = s[S_MSUM + 1] * inv
-        ez = s[S_MSUM + 2] * inv
-        lam = c[C_HI_LAMBDA]
-        if lam > 0.0:
-            # hard-iron offset o (body): R m = h + R o with h fixed in frame 6. Exponentially
-            # weighted sums (per block of cnt samples, R taken at the block's end) of 1, R,
-            # R m, m and |m|² give o in closed form (see _hard_iron_solve).
-            o0, o1, o2 = s[S_HI_O], s[S_HI_O + 1], s[S_HI_O + 2]
-            s[S_HI_W] = lam * s[S_HI_W] + cnt
-            for i in range(9):
-                s[S_HI_S + i] = lam * s[S_HI_S + i] + cnt * q[4 + i]
-            s[S_HI_RM] = lam * s[S_HI_RM] + s[S_MSUM] + cnt * (q[4] * o0 + q[5] * o1 + q[6] * o2)
-            s[S_HI_RM + 1] = lam * s[S_HI_RM + 1] + s[S_MSUM + 1] + cnt * (
-                q[7] * o0 + q[8] * o1 + q[9] * o2)
-            s[S_HI_RM + 2] = lam * s[S_HI_RM + 2] + s[S_MSUM + 2] + cnt * (
-                q[10] * o0 + q[11] * o1 + q[12] * o2)
-            for i in range(3):
-                s[S_HI_M + i] = lam * s[S_HI_M + i] + s[S_HI_BM + i]
-                s[S_HI_BM + i] = 0.0
-            s[S_HI_MM] = lam * s[S_HI_MM] + s[S_HI_BMM]
-            s[S_HI_BMM] = 0.0
-            _hard_iron_solve(s, c[C_HI_REG], c[C_HI_GATE], tmp)
-        s[S_MSUM] = 0.0
-        s[S_MSUM + 1] = 0.0
-        s[S_MSUM + 2] = 0.0
-        s[S_MAG_CNT] = 0.0
-        if reject_on:
-            nm = math.sqrt(ex * ex + ey * ey + ez * ez)
-            v[0] = nm
-            v[1] = -math.asin(min(max(ez / nm, -1.0), 1.0))
-            _lp(s, S_MN, 2, v, r, c, C_MAG_CUR_LP, c[C_TAU_MAG_CUR], tsm)
-            cur_norm = r[0]
-            cur_dip = r[1]
-            ref_n = s[S_MAG_REF_NORM]
-            kref = c[C_K_MAG_REF]
-            if abs(cur_norm - ref_n) < c[C_MAG_NORM_TH] * ref_n \
-                    and abs(cur_dip - s[S_MAG_REF_DIP]) < c[C_MAG_DIP_TH]:
-                s[S_MAG_UNDIST_T] += tsm
-                if s[S_MAG_UNDIST_T] >= c[C_MAG_MIN_UNDIST]:
-                    s[S_MAG_DIST] = 0.0
-                    s[S_MAG_REF_NORM] += kref * (cur_norm - ref_n)
-                    s[S_MAG_REF_DIP] += kref * (cur_dip - s[S_MAG_REF_DIP])
-            else:
-                s[S_MAG_UNDIST_T] = 0.0
-                s[S_MAG_DIST] = 1.0
-            # a new, steady field replaces the reference after long enough motion in it
-            cand_n = s[S_CAND_NORM]
-            if abs(cur_norm - cand_n) < c[C_MAG_NORM_TH] * cand_n \
-                    and abs(cur_dip - s[S_CAND_DIP]) < c[C_MAG_DIP_TH]:
-                g0, g1, g2 = s[S_RG_OUT], s[S_RG_OUT + 1], s[S_RG_OUT + 2]
-                if g0 * g0 + g1 * g1 + g2 * g2 >= c[C_MAG_NEW_MIN_GYRO] ** 2:
-                    s[S_CAND_T] += tsm
-                s[S_CAND_NORM] += kref * (cur_norm - cand_n)
-                s[S_CAND_DIP] += kref * (cur_dip - s[S_CAND_DIP])
-                if s[S_MAG_DIST] != 0.0 and (
-                        s[S_CAND_T] >= c[C_MAG_NEW]
-                        or (s[S_MAG_REF_NORM] == 0.0 and s[S_CAND_T] >= c[C_MAG_NEW_FIRST])):
-                    s[S_MAG_REF_NORM] = s[S_CAND_NORM]
-                    s[S_MAG_REF_DIP] = s[S_CAND_DIP]
-                    s[S_MAG_DIST] = 0.0
-                    s[S_MAG_UNDIST_T] = c[C_MAG_MIN_UNDIST]
-            else:
-                s[S_CAND_T] = 0.0
-                s[S_CAND_NORM] = cur_norm
-                s[S_CAND_DIP] = cur_dip
-            # soft de-weighting: distance of norm and dip from the reference
-            if s[S_MAG_REF_NORM] > 0.0:
-                dn = (cur_norm - s[S_MAG_REF_NORM]) / s[S_MAG_REF_NORM]
-                dd = cur_dip - s[S_MAG_REF_DIP]
-                soft = 1.0 + c[C_SOFT_N] * dn * dn + c[C_SOFT_D] * dd * dd
-        dis = math.atan2(ex, ey) - s[S_DELTA]
-        if dis > math.pi:
-            dis -= 2.0 * math.pi
-        elif dis < -math.pi:
-            dis += 2.0 * math.pi
-        s[S_MAG_DIS] = dis
-        k = c[C_K_MAG]
-        r_head = c[C_R_HEAD]
-        hkf = c[C_HEADING_KF] != 0.0
-        if hkf:
-            s[S_P_HEAD] += c[C_Q_HEAD] + c[C_Q_RATE] * s[S_ROT2]
-        s[S_ROT2] = 0.0
-        if reject_on:
-            if s[S_MAG_DIST] != 0.0:
-                if s[S_MAG_REJECT_T] <= c[C_MAG_MAX_REJECT]:
-                    s[S_MAG_REJECT_T] += tsm
-                    k = 0.0
-                    r_head = 0.0
-                else:
-                    k /= c[C_MAG_REJECT_FACTOR]
-                    r_head = c[C_R_HEAD] * c[C_MAG_REJECT_FACTOR] * c[C_MAG_REJECT_FACTOR]
-            else:
-                s[S_MAG_REJECT_T] = max(s[S_MAG_REJECT_T] - c[C_MAG_REJECT_FACTOR] * tsm, 0.0)
-        k /= soft
-        r_head *= soft
-        if hkf and r_head > 0.0:
-            k = s[S_P_HEAD] / (s[S_P_HEAD] + r_head)
-            s[S_P_HEAD] *= 1.0 - k
-        ki = s[S_K_MAG_INIT]
-        if ki != 0.0:
-            if k < ki:
-                k = ki
-                s[S_P_HEAD] = ki * c[C_R_HEAD]
-            ki = ki / (ki + 1.0)
-            if ki * c[C_TAU_MAG] < tsm:
-                ki = 0.0
-            s[S_K_MAG_INIT] = ki
-        s[S_K_MAG_USED] = k
-        d = s[S_DELTA] + k * dis
-        if d > math.pi:
-            d -= 2.0 * math.pi
-        elif d < -math.pi:
-            d += 2.0 * math.pi
-        s[S_DELTA] = d
-        s[S_CD] = math.cos(0.5 * d)
-        s[S_SD] = math.sin(0.5 * d)
-        # heading-rate bias from the magnetometer (integral action about the vertical)
-        kb = c[C_K_MAG_BIAS]
-        if kb > 0.0 and k > 0.0 and s[S_K_MAG_INIT] == 0.0:
-            # vertical of the navigation frame in body coordinates: third row of R_6b
-            u0 = q[10]
-            u1 = q[11]
-            u2 = q[12]
-            db = kb * (k / c[C_K_MAG]) * dis * tsm
-            s[S_BIAS] = _clip(s[S_BIAS] + db * u0, clip)
-            s[S_BIAS + 1] = _clip(s[S_BIAS + 1] + db * u1, clip)
-            s[S_BIAS + 2] = _clip(s[S_BIAS + 2] + db * u2, clip)
-    else:
-        flags |= 2
-    return flags
+            q = s.q_gyr
+            q[0], q[1], q[2], q[3], _ = quat.exp_mul(q[0], q[1], q[2], q[3], rx, ry, rz,
+                                                     True, True)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def quat9(s, q):
-    """``q[0:4] <- q_z(δ) ⊗ q[0:4]`` (ENU from body, ``q[0:4]`` holding ``q_6b``)."""
-    cd = s[S_CD]  # cos(δ/2), sin(δ/2), updated with δ
-    sd = s[S_SD]
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    q[0] = cd * w - sd * z
-    q[1] = cd * x - sd * y
-    q[2] = cd * y + sd * x
-    q[3] = cd * z + sd * w
+# ---------------------------------------------------------------- 3. inclination
+@njit(inline="always")
+def inclination(s, c, ax, ay, az):
+    """Low-pass the specific force in frame I, see it in frame 6 and turn ``q_acc`` by
+    the rotation that takes it to up. Returns ``(fx, fy, ok)``: the normalised filtered
+    force in frame 6 before the correction (``ok`` False when it is zero)."""
+    g = s.q_gyr
+    ix, iy, iz = quat.rotate(g[0], g[1], g[2], g[3], ax, ay, az)
+    lx, ly, lz = lowpass3(s.acc_lp, ix, iy, iz, c.acc_lp)
+    q = s.q_acc
+    fx, fy, fz = quat.rotate(q[0], q[1], q[2], q[3], lx, ly, lz)
+    nf = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not nf > 0.0:
+        return 0.0, 0.0, False
+    fx /= nf
+    fy /= nf
+    fz /= nf
+    # the rotation taking f onto up [0, 0, 1], applied on the left of q_acc
+    cw = math.sqrt(max(0.5 * (fz + 1.0), 0.0))
+    if cw > 1e-6:
+        pw, px, py = cw, 0.5 * fy / cw, -0.5 * fx / cw
+    else:
+        pw, px, py = 0.0, 1.0, 0.0
+    w, x, y, z = quat.mul(pw, px, py, 0.0, q[0], q[1], q[2], q[3])
+    q[0], q[1], q[2], q[3] = quat.normalised(w, x, y, z)
+    s.acc_rate = math.sqrt(fx * fx + fy * fy) / c.ts_s  # sin(correction angle) / ts
+    return fx, fy, True
+
+
+# ---------------------------------------------------------------- 4. gyro bias
+@njit(inline="always")
+def bias_kf(s, c, R, fx, fy, have_f):
+    """Gyro-bias Kalman filter on every ``bias_every``-th accelerometer sample.
+
+    ``R`` = ``R_6b`` (9-tuple) after the inclination correction ``(fx, fy)`` (rad, per
+    sample). At rest the measurement is the low-passed gyro (``H = I``); in motion the
+    correction rate is the measurement of the horizontal ``R_6b b`` (both sides
+    low-passed like the accelerometer), the vertical weakly pulled to zero."""
+    run = s.bias_count == 0
+    s.bias_count = (s.bias_count + 1) % c.bias_every
+    if not (run and (c.rest_bias or c.motion_bias)):
+        return
+    b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
+    rb0, rb1, _ = linalg.mat3_vec(R, b0, b1, b2)
+    H = lowpass33(s.bias_R_lp, R, c.bias_lp)
+    rb0, rb1 = lowpass2(s.bias_Rb_lp, rb0, rb1, c.bias_lp)
+    for i in range(3):
+        if s.P[i, i] < c.bias_p0:
+            s.P[i, i] += c.bias_v
+    if c.rest_bias and s.rest:
+        g = s.gyro_lp
+        bias_update(s, c, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
+                    g[0] - b0, g[1] - b1, g[2] - b2, c.w_rest, c.w_rest, c.w_rest)
+    elif c.motion_bias and have_f:
+        hb0, hb1, hb2 = linalg.mat3_vec(H, b0, b1, b2)
+        e0 = -fy / c.ts_s + rb0 - hb0
+        e1 = fx / c.ts_s + rb1 - hb1
+        bias_update(s, c, H, e0, e1, -hb2, c.w_motion, c.w_motion, c.w_vertical)
+
+
+@njit(inline="always")
+def bias_update(s, c, H, e0, e1, e2, w0, w1, w2):
+    """Kalman update of the bias with the innovation ``e = y - H b`` (clipped), ``H`` a
+    9-tuple, measurement variances ``w`` (diagonal): ``K = P Hᵀ (H P Hᵀ + W)⁻¹``,
+    ``b += K e`` (clipped), ``P -= K (P Hᵀ)ᵀ``, kept symmetric."""
+    lim = c.bias_clip
+    e0, e1, e2 = linalg.clip(e0, lim), linalg.clip(e1, lim), linalg.clip(e2, lim)
+    P = linalg.mat3_load(s.P)
+    PHt = linalg.mat3_mul_bt(P, H)
+    S = linalg.mat3_mul(H, PHt)
+    r = linalg.inv3(S[0] + w0, S[1], S[2], S[3], S[4] + w1, S[5], S[6], S[7], S[8] + w2)
+    K = linalg.mat3_mul(PHt, r[1:])
+    b = s.bias
+    for i in range(3):
+        b[i] = linalg.clip(b[i] + K[3 * i] * e0 + K[3 * i + 1] * e1 + K[3 * i + 2] * e2, lim)
+    KHP = linalg.mat3_mul_bt(K, PHt)
+    for i in range(3):
+        for j in range(3):
+            s.P[i, j] = P[3 * i + j] - KHP[3 * i + j]
+    linalg.symmetrise(s.P)  # the short form lets rounding asymmetry grow over 1e6+ updates
+
+
+# ---------------------------------------------------------------- 5. magnetometer
+@njit(inline="always")
+def mag_accumulate(s, c, R, mx, my, mz):
+    """Add the field (hard-iron offset removed) seen in frame 6 to the block sum, and the
+    raw field to the hard-iron block sums. Returns whether the block is complete (the
+    first sample is a block of its own)."""
+    hi = s.hard_iron
+    if c.hi_lambda > 0.0:
+        hi.block_m[0] += mx
+        hi.block_m[1] += my
+        hi.block_m[2] += mz
+        hi.block_mm += mx * mx + my * my + mz * mz
+        mx -= hi.o[0]
+        my -= hi.o[1]
+        mz -= hi.o[2]
+    ex, ey, ez = linalg.mat3_vec(R, mx, my, mz)
+    s.mag_sum[0] += ex
+    s.mag_sum[1] += ey
+    s.mag_sum[2] += ez
+    s.mag_count += 1
+    return s.mag_count >= c.mag_every or s.k_mag_init == 1.0
+
+
+@njit(inline="always")
+def hard_iron(s, c, R, cnt):
+    """Fold the block of ``cnt`` samples into the weighted hard-iron sums (``R`` = R_6b at
+    the block's end) and solve for the offset ``o`` (body).
+
+    ``R m = h + R o`` with ``h`` fixed in frame 6: least squares with the prior
+    ``reg·w|o|²``, ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m``. ``o`` is used only when it
+    leaves less than ``hi_gate`` of the residual energy without an offset."""
+    hi, lam = s.hard_iron, c.hi_lambda
+    o0, o1, o2 = hi.o[0], hi.o[1], hi.o[2]
+    ro = linalg.mat3_vec(R, o0, o1, o2)
+    hi.w = lam * hi.w + cnt
+    for i in range(3):
+        for j in range(3):
+            hi.S[i, j] = lam * hi.S[i, j] + cnt * R[3 * i + j]
+        hi.rm[i] = lam * hi.rm[i] + s.mag_sum[i] + cnt * ro[i]
+        hi.m[i] = lam * hi.m[i] + hi.block_m[i]
+        hi.block_m[i] = 0.0
+    hi.mm = lam * hi.mm + hi.block_mm
+    hi.block_mm = 0.0
+    w, S = hi.w, linalg.mat3_load(hi.S)
+    rm0, rm1, rm2 = hi.rm[0], hi.rm[1], hi.rm[2]
+    m0, m1, m2 = hi.m[0], hi.m[1], hi.m[2]
+    StS = linalg.mat3_tmul(S, S)
+    d = w * w * (1.0 + c.hi_reg)
+    a = linalg.inv3(d - StS[0], -StS[1], -StS[2], -StS[3], d - StS[4], -StS[5],
+                    -StS[6], -StS[7], d - StS[8])
+    if a[0] <= 0.0:
+        return
+    sr0, sr1, sr2 = linalg.mat3_tvec(S, rm0, rm1, rm2)
+    o0, o1, o2 = linalg.mat3_vec(a[1:], w * m0 - sr0, w * m1 - sr1, w * m2 - sr2)
+    so0, so1, so2 = linalg.mat3_vec(S, o0, o1, o2)
+    h0, h1, h2 = (rm0 - so0) / w, (rm1 - so1) / w, (rm2 - so2) / w
+    # residual energy of the fit with the offset (e1) and without it (e0, h = mean of R m)
+    e0 = hi.mm - (rm0 * rm0 + rm1 * rm1 + rm2 * rm2) / w
+    e1 = hi.mm - (h0 * rm0 + h1 * rm1 + h2 * rm2) - (o0 * m0 + o1 * m1 + o2 * m2)
+    fits = e1 < c.hi_gate * e0
+    hi.o[0], hi.o[1], hi.o[2] = (o0, o1, o2) if fits else (0.0, 0.0, 0.0)
+
+
+@njit(inline="always")
+def mag_disturbance(s, c, nm, dip):
+    """Compare the low-passed norm and dip of the field with the learned reference: flag
+    a disturbance outside the thresholds, clear it after ``mag_min_undisturbed_s``
+    within them (and then follow the reference slowly). Returns the low-passed
+    ``(norm, dip)``."""
+    tsm = c.ts_mag
+    cur_n, cur_d = lowpass2(s.mag_lp, nm, dip, c.mag_lp)
+    ref_n = s.mag_ref_norm
+    if abs(cur_n - ref_n) < c.mag_norm_th * ref_n \
+            and abs(cur_d - s.mag_ref_dip) < c.mag_dip_th:
+        s.mag_undisturbed_t += tsm
+        if s.mag_undisturbed_t >= c.mag_min_undisturbed_s:
+            s.mag_disturbed = False
+            s.mag_ref_norm += c.k_mag_ref * (cur_n - ref_n)
+            s.mag_ref_dip += c.k_mag_ref * (cur_d - s.mag_ref_dip)
+    else:
+        s.mag_undisturbed_t = 0.0
+        s.mag_disturbed = True
+    return cur_n, cur_d
+
+
+@njit(inline="always")
+def new_field(s, c, cur_n, cur_d):
+    """A new, steady field replaces the reference after ``mag_new_s`` of motion in it
+    (``mag_new_first_s`` while there is no reference yet). Returns the soft de-weighting
+    factor ``1 + soft_norm (Δnorm/norm)² + soft_dip Δdip²`` of the heading variance."""
+    cand_n = s.cand_norm
+    if abs(cur_n - cand_n) < c.mag_norm_th * cand_n \
+            and abs(cur_d - s.cand_dip) < c.mag_dip_th:
+        g = s.gyro_lp
+        if g[0] * g[0] + g[1] * g[1] + g[2] * g[2] >= c.mag_new_min_gyro2:
+            s.cand_t += c.ts_mag
+        s.cand_norm += c.k_mag_ref * (cur_n - cand_n)
+        s.cand_dip += c.k_mag_ref * (cur_d - s.cand_dip)
+        if s.mag_disturbed and (s.cand_t >= c.mag_new_s or (
+                s.mag_ref_norm == 0.0 and s.cand_t >= c.mag_new_first_s)):
+            s.mag_ref_norm = s.cand_norm
+            s.mag_ref_dip = s.cand_dip
+            s.mag_disturbed = False
+            s.mag_undisturbed_t = c.mag_min_undisturbed_s
+    else:
+        s.cand_t = 0.0
+        s.cand_norm = cur_n
+        s.cand_dip = cur_d
+    if s.mag_ref_norm > 0.0:
+        dn = (cur_n - s.mag_ref_norm) / s.mag_ref_norm
+        dd = cur_d - s.mag_ref_dip
+        return 1.0 + c.soft_norm * dn * dn + c.soft_dip * dd * dd
+    return 1.0
+
+
+@njit(inline="always")
+def heading_gain(s, c, soft):
+    """The heading gain of this update: first-order ``k_mag`` or the heading KF's gain;
+    0 while a disturbance is rejected (reduced after ``mag_max_reject_s``), divided by the
+    soft de-weighting ``soft``; at least the running-mean gain at start."""
+    tsm = c.ts_mag
+    k, r_head = c.k_mag, c.r_head
+    if c.heading_kf:
+        s.p_head += c.q_head + c.q_rate * s.rot2
+    s.rot2 = 0.0
+    if c.mag_rejection:
+        if s.mag_disturbed:
+            if s.mag_reject_t <= c.mag_max_reject_s:
+                s.mag_reject_t += tsm
+                k, r_head = 0.0, 0.0
+            else:
+                k /= c.mag_reject_factor
+                r_head = c.r_head * c.mag_reject_factor * c.mag_reject_factor
+        else:
+            s.mag_reject_t = max(s.mag_reject_t - c.mag_reject_factor * tsm, 0.0)
+    k /= soft
+    r_head *= soft
+    if c.heading_kf and r_head > 0.0:
+        k = s.p_head / (s.p_head + r_head)
+        s.p_head *= 1.0 - k
+    ki = s.k_mag_init
+    if ki != 0.0:  # running mean at start: the gain is at least 1/count
+        if k < ki:
+            k = ki
+            s.p_head = ki * c.r_head
+        ki = ki / (ki + 1.0)
+        s.k_mag_init = 0.0 if ki * c.tau_mag_s < tsm else ki
+    return k
+
+
+@njit(inline="always")
+def magnetometer(s, c, R, mx, my, mz):
+    """Heading from the magnetometer ``m`` (body), ``R`` = R_6b: accumulate; on a complete
+    block update the hard-iron offset, test for disturbances, turn ``delta`` towards the
+    field's heading in frame 6 and (optionally) feed the vertical bias."""
+    if not mag_accumulate(s, c, R, mx, my, mz):
+        return  # accumulating: the heading filter runs on every mag_every-th sample
+    cnt = s.mag_count
+    inv = 1.0 / cnt
+    ex, ey, ez = s.mag_sum[0] * inv, s.mag_sum[1] * inv, s.mag_sum[2] * inv
+    if c.hi_lambda > 0.0:
+        hard_iron(s, c, R, cnt)
+    s.mag_sum[0], s.mag_sum[1], s.mag_sum[2] = 0.0, 0.0, 0.0
+    s.mag_count = 0
+    soft = 1.0
+    if c.mag_rejection:
+        nm = math.sqrt(ex * ex + ey * ey + ez * ez)
+        dip = -math.asin(min(max(ez / nm, -1.0), 1.0))
+        cur_n, cur_d = mag_disturbance(s, c, nm, dip)
+        soft = new_field(s, c, cur_n, cur_d)
+    dis = wrap(math.atan2(ex, ey) - s.delta)
+    s.mag_dis = dis
+    k = heading_gain(s, c, soft)
+    s.k_mag_used = k
+    d = wrap(s.delta + k * dis)
+    s.delta = d
+    s.cos_half_delta = math.cos(0.5 * d)
+    s.sin_half_delta = math.sin(0.5 * d)
+    if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:
+        # heading-rate bias: integral action about the vertical (third row of R_6b)
+        db = c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag
+        for i in range(3):
+            s.bias[i] = linalg.clip(s.bias[i] + db * R[6 + i], c.bias_clip)
+
+
+# ---------------------------------------------------------------- the step
+@njit(inline="always")
+def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """One sample in place on the state record ``s``: ``dt`` (s) since the last sample,
+    gyro (rad/s), accelerometer (m/s²), magnetometer (body); a zero accelerometer or
+    magnetometer vector is no sample. Returns ``(flags, q_6b)``: the bits ``ACC_SKIPPED``,
+    ``MAG_SKIPPED``, ``GAP`` and ``q_acc ⊗ q_gyr`` (a 4-tuple)."""
+    if c.rest_bias or c.mag_rejection:
+        rest_gyro(s, c, gx, gy, gz)
+    strapdown(s, dt, gx, gy, gz)
+    qa, qg = s.q_acc, s.q_gyr
+    if dt > c.max_dt_s:
+        return GAP, quat.mul(qa[0], qa[1], qa[2], qa[3], qg[0], qg[1], qg[2], qg[3])
+    flags = 0
+    if ax * ax + ay * ay + az * az > 0.0:
+        if c.rest_bias:
+            rest_acc(s, c, ax, ay, az)
+        fx, fy, have_f = inclination(s, c, ax, ay, az)
+        q6 = quat.mul(qa[0], qa[1], qa[2], qa[3], qg[0], qg[1], qg[2], qg[3])
+        R = quat.dcm(q6[0], q6[1], q6[2], q6[3])
+        bias_kf(s, c, R, fx, fy, have_f)
+    else:
+        flags |= ACC_SKIPPED
+        q6 = quat.mul(qa[0], qa[1], qa[2], qa[3], qg[0], qg[1], qg[2], qg[3])
+        R = quat.dcm(q6[0], q6[1], q6[2], q6[3])
+    if mx * mx + my * my + mz * mz > 0.0:
+        magnetometer(s, c, R, mx, my, mz)
+    else:
+        flags |= MAG_SKIPPED
+    return flags, q6
 
 
 @njit(cache=True, error_model="numpy")
-def robust_ahrs_batch(dt, gyro, acc, mag, s, c, q_out, bias_out, rest_out, dist_out,
+def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, dist_out,
                       acc_rate_out, k_mag_out, hi_out, flags_out):
-    """Run N samples (``dt`` (N,) s, sensors (N, 3)) from state ``s`` (updated in place).
+    """Run N samples (``dt`` (N,) s, sensors (N, 3) body) from ``state`` (an array of one
+    ``STATE`` record, updated in place) with the ``Coefficients`` ``c``.
 
-    Outputs: ``q_out`` (N, 4) ``q_nb``, ``bias_out`` (N, 3) rad/s, ``rest_out``,
-    ``dist_out`` (N,) bool, ``acc_rate_out``, ``k_mag_out`` (N,), ``hi_out`` (N, 3) hard-iron
-    offset in use, ``flags_out`` (N,) int bits.
+    Outputs: ``q_out`` (N, 4) ``q_nb`` (ENU from body), ``bias_out`` (N, 3) rad/s,
+    ``rest_out``, ``dist_out`` (N,) bool, ``acc_rate_out`` rad/s, ``k_mag_out`` (N,),
+    ``hi_out`` (N, 3) hard-iron offset in use, ``flags_out`` (N,) int bits.
     """
-    v = np.empty(9)
-    r = np.empty(9)
-    h = np.empty(9)
-    k33 = np.empty(9)
-    tmp = np.empty(18)
-    q = np.empty(13)
+    s = state[0]
     for i in range(dt.shape[0]):
-        f = robust_ahrs_step(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
-                             acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], v, r, h,
-                             k33, tmp, q)
-        quat9(s, q)
-        q_out[i, 0] = q[0]
-        q_out[i, 1] = q[1]
-        q_out[i, 2] = q[2]
-        q_out[i, 3] = q[3]
-        bias_out[i, 0] = s[S_BIAS]
-        bias_out[i, 1] = s[S_BIAS + 1]
-        bias_out[i, 2] = s[S_BIAS + 2]
-        rest_out[i] = s[S_REST] != 0.0
-        dist_out[i] = s[S_MAG_DIST] != 0.0
-        acc_rate_out[i] = s[S_ACC_RATE]
-        k_mag_out[i] = s[S_K_MAG_USED]
-        hi_out[i, 0] = s[S_HI_O]
-        hi_out[i, 1] = s[S_HI_O + 1]
-        hi_out[i, 2] = s[S_HI_O + 2]
+        f, q6 = robust_ahrs_step(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
+                                 acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])
+        # q_nb = q_z(delta) ⊗ q_6b
+        q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = quat.mul(
+            s.cos_half_delta, 0.0, 0.0, s.sin_half_delta, q6[0], q6[1], q6[2], q6[3])
+        bias_out[i, 0], bias_out[i, 1], bias_out[i, 2] = s.bias[0], s.bias[1], s.bias[2]
+        rest_out[i] = s.rest
+        dist_out[i] = s.mag_disturbed
+        acc_rate_out[i] = s.acc_rate
+        k_mag_out[i] = s.k_mag_used
+        hi = s.hard_iron.o
+        hi_out[i, 0], hi_out[i, 1], hi_out[i, 2] = hi[0], hi[1], hi[2]
         flags_out[i] = f
-
