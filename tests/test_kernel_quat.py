@@ -136,3 +136,15 @@ def test_linalg_toolbox_agrees_with_numpy():
         kl.symmetrise(S)
         np.testing.assert_allclose(S, 0.5 * (P + P.T), atol=0)
     assert kl.clip(3.0, 2.0) == 2.0 and kl.clip(-3.0, 2.0) == -2.0 and kl.clip(1.5, 2.0) == 1.5
+
+
+def test_skew_into_writes_a_scaled_cross_product_block():
+    from gnomon.kernels import linalg as kl
+
+    rng = np.random.default_rng(6)
+    v, b = rng.normal(size=(2, 3))
+    out = np.full((6, 3), np.nan)
+    kl.skew_into(out, 3, 2.0, *v)
+    np.testing.assert_allclose(out[3:] @ b, 2.0 * np.cross(v, b), atol=1e-15)
+    np.testing.assert_array_equal(out[3:], 2.0 * kl.skew_arr(v))
+    assert np.all(np.isnan(out[:3]))  # the other rows are left alone

@@ -85,3 +85,18 @@ def symmetrise(P):
             m = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = m
             P[j, i] = m
+
+
+@njit(inline="always")
+def skew_into(out, row, scale, vx, vy, vz):
+    """``out[row:row + 3, 0:3] <- scale·[v×]`` in place (``[v×] b = v × b``): a block of a
+    measurement matrix such as ``D = [2[â×]; 2[m̂×]]``, written without allocating."""
+    out[row, 0] = 0.0
+    out[row, 1] = -scale * vz
+    out[row, 2] = scale * vy
+    out[row + 1, 0] = scale * vz
+    out[row + 1, 1] = 0.0
+    out[row + 1, 2] = -scale * vx
+    out[row + 2, 0] = -scale * vy
+    out[row + 2, 1] = scale * vx
+    out[row + 2, 2] = 0.0
