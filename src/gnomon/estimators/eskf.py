@@ -31,9 +31,15 @@ Measurement models (magnetometer normalised by the reference field magnitude
   reduced ``D`` is the constant matrix times the estimated rotation.
 
 Both ``D`` are checked against finite differences of the measurement functions
-in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised. The
-readable functions here (numpy matrices) are the reference of the compiled
-kernel ``gnomon.kernels.eskf`` that ``run`` uses.
+in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised.
+
+Two twins of one filter: ``Eskf.run`` calls the compiled kernel
+``gnomon.kernels.eskf``; ``Eskf.update(dt_s, gyro_rad_s, accel_m_s2, mag_uT)`` (streaming,
+``None`` = no new sample) runs the readable functions here (numpy matrices) in the
+kernel's phases — prediction, gates and reference field, accelerometer low-pass,
+measurement, correction — on the same ``STATE`` record; the tests compare the two
+step by step. The operation counts of the paper's comparison (``count_gain_operations``,
+``count_update_operations``) run the kernel's correction source on ``Traced`` numbers.
 
 Beyond the paper (which assumes no linear acceleration, an undisturbed field
 and known H, Z), for real data — all can be switched off by parameters:

@@ -154,6 +154,7 @@ class Outputs(NamedTuple):
 
 
 def new_outputs(n: int) -> Outputs:
+    """``Outputs`` for ``n`` samples (innovation zeroed, skipped False)."""
     return Outputs(np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 6)), np.empty((n, 6)),
                    np.zeros(n, np.bool_))
 
@@ -162,8 +163,8 @@ class Work(NamedTuple):
     """Scratch arrays of one step (``workspace``), allocated once per batch."""
 
     A: np.ndarray   #: (3, 3) I - [ω̂×] dt
-    T: np.ndarray   #: (3, 3)
-    U: np.ndarray   #: (3, 3)
+    T: np.ndarray   #: (3, 3) A P11 + c P21
+    U: np.ndarray   #: (3, 3) A P12 + c P22
     y: np.ndarray   #: (6,) measurement (first r entries)
     D1: np.ndarray  #: (6, 3) attitude columns of D (first r rows)
     Rd: np.ndarray  #: (6,) diagonal of R (first r entries)
@@ -172,6 +173,7 @@ class Work(NamedTuple):
 
 @njit(**_JIT)
 def workspace():
+    """A ``Work`` of fresh scratch arrays."""
     return Work(np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(6),
                 np.empty((6, 3)), np.empty(6), np.empty(6))
 
