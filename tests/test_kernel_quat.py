@@ -155,3 +155,15 @@ def test_mat3_tuple_helpers_agree_with_numpy():
         for f, ref in ((kl.mat3_mul, a @ b), (kl.mat3_mul_bt, a @ b.T), (kl.mat3_tmul, a.T @ b)):
             np.testing.assert_allclose(np.reshape(f(ta, tb), (3, 3)), ref, rtol=1e-14,
                                        atol=1e-14)
+
+
+def test_skew_into_writes_a_scaled_cross_product_block():
+    from gnomon.kernels import linalg as kl
+
+    rng = np.random.default_rng(6)
+    v, b = rng.normal(size=(2, 3))
+    out = np.full((6, 3), np.nan)
+    kl.skew_into(out, 3, 2.0, *v)
+    np.testing.assert_allclose(out[3:] @ b, 2.0 * np.cross(v, b), atol=1e-15)
+    np.testing.assert_array_equal(out[3:], 2.0 * kl.skew_arr(v))
+    assert np.all(np.isnan(out[:3]))  # the other rows are left alone

@@ -31,9 +31,15 @@ Measurement models (magnetometer normalised by the reference field magnitude
   reduced ``D`` is the constant matrix times the estimated rotation.
 
 Both ``D`` are checked against finite differences of the measurement functions
-in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised. The
-readable functions here (numpy matrices) are the reference of the compiled
-kernel ``gnomon.kernels.eskf`` that ``run`` uses.
+in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised.
+
+Two twins of one filter: ``Eskf.run`` calls the compiled kernel
+``gnomon.kernels.eskf``; ``Eskf.update(dt_s, gyro_rad_s, accel_m_s2, mag_uT)`` (streaming,
+``None`` = no new sample) runs the readable functions here (numpy matrices) in the
+kernel's phases — prediction, gates and reference field, accelerometer low-pass,
+measurement, correction — on the same ``STATE`` record; the tests compare the two
+step by step. The operation counts of the paper's comparison (``count_gain_operations``,
+``count_update_operations``) run the kernel's correction source on ``Traced`` numbers.
 
 Beyond the paper (which assumes no linear acceleration, an undisturbed field
 and known H, Z), for real data — all can be switched off by parameters:
@@ -59,7 +65,7 @@ import numpy as np
 
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.estimators.initial import initial_attitude
-from gnomon.recording import Recording
+from gnomon.recording import MAG_UNITS_TO_TESLA, Recording
 from gnomon.rotation import dcm_from_quat, quat_from_rotvec, quat_mul, skew
 
 __all__ = [
@@ -67,7 +73,8 @@ __all__ = [
     "transition_matrix", "process_noise", "propagate", "measurement_r6", "measurement_r3",
     "measurement_function_r6", "measurement_function_r3", "measurement_matrix_r3_nav",
     "update", "update_dip", "accel_lowpass", "reference_field",
-    "count_gain_operations", "paper_gain_operations", "continuous_matrix",
+    "count_gain_operations", "count_update_operations", "paper_gain_operations",
+    "trace_update", "UpdateTrace", "OpTape", "Traced", "continuous_matrix",
 ]
 
 
@@ -260,110 +267,183 @@ class EskfParams(Params):
 
 @dataclass(frozen=True)
 class EskfR6Params(EskfParams):
-    """``EskfParams`` with the full 6-component measurement by default."""
+    """``EskfParams`` of ``eskf-r6``: the full 6-component measurement, fixed."""
 
-    measurement: str = param("r6", "", "measurement model: 'r6' or 'r3'")
+    measurement: str = param("r6", "", "measurement model, fixed at 'r6' for eskf-r6 "
+                             "(the reduced model is eskf-r3)")
+
+    def validate(self) -> None:
+        super().validate()
+        self._require("measurement", self.measurement == "r6",
+                      "eskf-r6 runs the full model 'r6' (the reduced 'r3' is eskf-r3)")
 
 
 @dataclass(frozen=True)
 class EskfR3Params(EskfParams):
-    """``EskfParams`` with the paper's reduced 3-component measurement by default."""
+    """``EskfParams`` of ``eskf-r3``: the paper's reduced 3-component measurement, fixed."""
 
-    measurement: str = param("r3", "", "measurement model: 'r6' or 'r3'")
+    measurement: str = param("r3", "", "measurement model, fixed at 'r3' for eskf-r3 "
+                             "(the full model is eskf-r6)")
+
+    def validate(self) -> None:
+        super().validate()
+        self._require("measurement", self.measurement == "r3",
+                      "eskf-r3 runs the reduced model 'r3' (the full 'r6' is eskf-r6)")
+
+
+#: tesla per µT (the streaming ``update`` takes µT; the state keeps |B0| in tesla, as ``run``)
+_TESLA_PER_UT = MAG_UNITS_TO_TESLA["uT"]
 
 
 class Eskf(Estimator):
     """Error-state quaternion KF AHRS (seed 002); see the module docstring.
 
-    ``run(rec)`` uses the compiled kernel. ``update(gyro, accel, mag, dt)``
-    processes one sample with the readable reference (slow; streaming use);
-    the first call initialises from that sample.
+    The evolving state is one ``gnomon.kernels.eskf.STATE`` record (``state``, an array of
+    one element: ``q`` = ``q_nb``, ``bias`` rad/s, ``P`` (6, 6), the inclination estimate
+    and the accelerometer low-pass), with the reference magnitude ``b0_mag`` (tesla) and
+    ``t_last``. ``run(rec)`` continues it with the compiled kernel; ``update(...)`` with the
+    readable reference of the same phases (slow; streaming use). The first sample
+    initialises it (TRIAD).
     Signals: ``bias_rad_s`` (N, 3), ``innovation`` (N, r), ``cov_diag`` (N, 6)
-    (attitude part in rad² of ``δe`` = half-angles, bias part in (rad/s)²).
+    (attitude part in rad² of ``δe`` = half-angles, bias part in (rad/s)²),
+    ``update_skipped`` (N,) (accelerometer or magnetometer dropout: prediction only).
     """
 
     name = "eskf"
     summary = "error-state quaternion KF AHRS, full or reduced measurement (seed 002)"
+    paper = "seed 002 (Bilous & Nesterenko)"
     Params = EskfParams
     needs = ("gyro", "accel", "mag")
-    state_fields = ("q", "b", "P", "b0_mag", "acc_lp", "dip", "t_last")
+    kind = "imu"
+    reference_frame = "ENU"
+    state_fields = ("state", "b0_mag", "t_last")
 
     def reset(self) -> None:
-        self.q = None
-        self.b = np.zeros(3)
-        self.P = None
-        self.b0_mag = None   # reference field magnitude, input unit
-        self.acc_lp = None   # low-passed accelerometer in the navigation frame, m/s²
-        self.dip = None      # (running mean of cos(a, m) = -Z, sample count)
-        self.t_last = None   # s, last sample processed by ``run``
+        self.state = None       # gnomon.kernels.eskf.STATE array of one element, once started
+        self.b0_mag = None      # reference field magnitude, tesla
+        self.t_last = None      # s, last sample processed by ``run``
+        self.innovation = None  # (r,) measurement of the last ``update`` (zeros: none used)
 
-    def _init_state(self, accel_b, mag_b):
-        """Initialise from windows ``accel_b``, ``mag_b`` (k, 3) of the first samples.
+    # ------------------------------------------------------------ state views
+    @property
+    def _s(self):
+        """The state record, read and written by field name (as the kernel's ``s``)."""
+        return self.state.view(np.recarray)[0]
+
+    @property
+    def q(self) -> np.ndarray | None:
+        """``q_nb`` (4,): ENU from body, ``[w, x, y, z]`` (None before the first sample)."""
+        return None if self.state is None else self.state["q"][0].copy()
+
+    @property
+    def bias(self) -> np.ndarray | None:
+        """Gyro bias estimate (3,), rad/s, body frame."""
+        return None if self.state is None else self.state["bias"][0].copy()
+
+    @property
+    def P(self) -> np.ndarray | None:
+        """Covariance (6, 6) of the error state ``[δe; δb]``."""
+        return None if self.state is None else self.state["P"][0].copy()
+
+    @property
+    def field(self) -> tuple[float, float]:
+        """Current normalised reference field ``(H, Z)`` (``H² + Z² = 1``)."""
+        s = float(self.state["dip_s"][0])
+        return float(np.sqrt(1.0 - s * s)), float(-s)
+
+    def _init_state(self, accel_b, mag_T):
+        """Initialise from windows ``accel_b`` (m/s²), ``mag_T`` (tesla) (k, 3) of the first
+        samples.
 
         Rows with a zero accelerometer or magnetometer vector (dropouts) are left
         out; without any usable row the attitude starts at the identity with a
         reference field of inclination 60° until the data say otherwise.
         """
+        from gnomon.kernels.eskf import new_state
+
         p = self.params
         a = np.atleast_2d(np.asarray(accel_b, float))
-        m = np.atleast_2d(np.asarray(mag_b, float))
+        m = np.atleast_2d(np.asarray(mag_T, float))
         na, nm = np.linalg.norm(a, axis=1), np.linalg.norm(m, axis=1)
         ok = (na > 0) & (nm > 0)
-        self.q = initial_attitude(a[ok], m[ok], samples=len(a)) if ok.any() else \
+        q = initial_attitude(a[ok], m[ok], samples=len(a)) if ok.any() else \
             np.array([1.0, 0.0, 0.0, 0.0])
-        self.b = np.zeros(3)
         self.b0_mag = float(nm[nm > 0].mean()) if (nm > 0).any() else 1.0
         cos = np.sum(a[ok] * m[ok], 1) / (p.gravity * nm[ok])
-        self.dip = ((float(cos.mean()), float(len(cos))) if ok.any()
-                    else (-float(np.sin(np.radians(60.0))), 1.0))
+        dip = ((float(cos.mean()), float(len(cos))) if ok.any()
+               else (-float(np.sin(np.radians(60.0))), 1.0))
         if p.inclination_known:
-            self.dip = (-float(np.sin(p.inclination)), float(max(len(cos), 1)))
-        if abs(self.dip[0]) > _MAX_ABS_DIP:  # field along gravity: heading unobservable for now;
+            dip = (-float(np.sin(p.inclination)), float(max(len(cos), 1)))
+        if abs(dip[0]) > _MAX_ABS_DIP:  # field along gravity: heading unobservable for now;
             # keep the filter running (H > 0) and let the running mean learn the real dip
-            self.dip = (float(np.clip(self.dip[0], -_MAX_ABS_DIP, _MAX_ABS_DIP)), self.dip[1])
-        self.P = np.diag([(0.5 * p.init_att_std) ** 2] * 3 + [p.init_bias_std**2] * 3)
+            dip = (float(np.clip(dip[0], -_MAX_ABS_DIP, _MAX_ABS_DIP)), dip[1])
+        P = np.diag([(0.5 * p.init_att_std) ** 2] * 3 + [p.init_bias_std**2] * 3)
+        self.state = new_state(q, np.zeros(3), P, dip[0], dip[1])
 
-    @property
-    def field(self) -> tuple[float, float]:
-        """Current normalised reference field ``(H, Z)`` (``H² + Z² = 1``)."""
-        s = self.dip[0]
-        return float(np.sqrt(1.0 - s * s)), float(-s)
+    # ------------------------------------------------------------ readable twin
+    def update(self, dt_s: float, gyro_rad_s=None, accel_m_s2=None, mag_uT=None):
+        """One sample with the readable reference; returns ``q_nb`` (4,) after it.
 
-    def _R(self, fa=1.0, fm=1.0):
+        ``dt_s`` s since the previous sample (0 at the first); gyro rad/s, accelerometer
+        m/s², magnetometer µT, body frame. ``None`` = no new sample of that sensor: without
+        the gyro there is no prediction; without the accelerometer or the magnetometer no
+        correction (both measurement models are built from both sensors), as for a dropout
+        (a zero vector). Phases as the kernel's ``step``: ``propagate`` (gyro),
+        ``_reference_and_gates``, ``_accel_lowpass``, ``measurement_r6`` / ``_r3``, ``update``.
+        """
         p = self.params
-        h, _ = self.field
+        a = None if accel_m_s2 is None else np.asarray(accel_m_s2, float)
+        m = None if mag_uT is None else np.asarray(mag_uT, float) * _TESLA_PER_UT
+        if self.state is None:
+            self._init_state(np.zeros(3) if a is None else a, np.zeros(3) if m is None else m)
+        s = self._s
+        if gyro_rad_s is not None:
+            s.q, s.P = propagate(s.q, s.bias, s.P, gyro_rad_s, dt_s, p.gyro_noise, p.bias_rw)
+        self.innovation = np.zeros(6 if p.measurement == "r6" else 3)
+        if a is None or m is None:
+            return s.q.copy()
+        m = m / self.b0_mag
+        na, nm = float(np.linalg.norm(a)), float(np.linalg.norm(m))
+        if not (na > 0 and nm > 0):  # dropout: propagate only
+            return s.q.copy()
+        fa, fm, h, z = self._reference_and_gates(s, a, m, na, nm, dt_s)
+        if p.accel_lowpass_tau > 0.0:
+            a = self._accel_lowpass(s, a, dt_s)
+        meas = measurement_r6 if p.measurement == "r6" else measurement_r3
+        y, D = meas(s.q, a, m, p.gravity, h, z)
+        s.q, s.bias, s.P, _ = update(s.q, s.bias, s.P, y, D, self._R(fa, fm, h))
+        self.innovation = y
+        return s.q.copy()
+
+    def _reference_and_gates(self, s, a, m, na: float, nm: float, dt: float):
+        """Variance gates ``fa``, ``fm`` and the reference field ``(H, Z)`` after updating
+        the inclination estimate ``s.dip_s`` (``update_dip``; frozen while a gate is at 2
+        or more). ``na``, ``nm``: norms of ``a`` (m/s²) and the normalised ``m``."""
+        p = self.params
+        fa = _gate(abs(na - p.gravity), p.accel_gate)
+        cos_am = (a @ m) / (p.gravity * nm)
+        fm = _gate(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), p.mag_gate)
+        tau = 0.0 if (p.inclination_known or fa >= 2.0 or fm >= 2.0) else p.dip_tau
+        s.dip_s, s.dip_count = update_dip(s.dip_s, s.dip_count, a, m, dt, tau, p.gravity)
+        return fa, fm, float(np.sqrt(1.0 - s.dip_s**2)), float(-s.dip_s)
+
+    def _accel_lowpass(self, s, a, dt: float):
+        """``accel_lowpass`` on the record's low-pass state; the filtered reading (body)."""
+        tau = self.params.accel_lowpass_tau
+        w = min(1.0, dt / tau) if s.acc_lp_started else 1.0
+        a, s.acc_lp = accel_lowpass(s.q, a, s.acc_lp if s.acc_lp_started else None, w)
+        s.acc_lp_started = True
+        return a
+
+    def _R(self, fa: float, fm: float, h: float) -> np.ndarray:
+        """Measurement covariance with the gates' inflation ``fa``, ``fm``; ``h`` = H."""
+        p = self.params
         if p.measurement == "r6":
             return np.diag([p.accel_noise**2 * fa] * 3 + [p.mag_noise**2 * fm] * 3)
         ra = p.accel_noise**2 * fa / p.gravity**2
         return np.diag([ra, ra, p.mag_noise**2 * fm / h**2])
 
-    def update(self, gyro_b, accel_b, mag_b, dt: float):
-        """One sample (reference implementation): gyro rad/s, accel m/s², mag any unit
-        (the first call fixes the reference magnitude); returns ``q_nb`` (4,)."""
-        p = self.params
-        if self.q is None:
-            self._init_state(accel_b, mag_b)
-        m = np.asarray(mag_b, float) / self.b0_mag
-        a = np.asarray(accel_b, float)
-        self.q, self.P = propagate(self.q, self.b, self.P, gyro_b, dt, p.gyro_noise, p.bias_rw)
-        if not (np.linalg.norm(a) > 0 and np.linalg.norm(m) > 0):  # dropout: propagate only
-            self.innovation = np.zeros(6 if p.measurement == "r6" else 3)
-            return self.q.copy()
-        fa = _gate(abs(np.linalg.norm(a) - p.gravity), p.accel_gate)
-        cos_am = (a @ m) / (p.gravity * np.linalg.norm(m))
-        fm = _gate(max(abs(np.linalg.norm(m) - 1.0), abs(cos_am - self.dip[0])), p.mag_gate)
-        tau = 0.0 if (p.inclination_known or fa >= 2.0 or fm >= 2.0) else p.dip_tau
-        self.dip = update_dip(*self.dip, a, m, dt, tau, p.gravity)
-        h, z = self.field
-        if p.accel_lowpass_tau > 0.0:
-            w = 1.0 if self.acc_lp is None else min(1.0, dt / p.accel_lowpass_tau)
-            a, self.acc_lp = accel_lowpass(self.q, a, self.acc_lp, w)
-        meas = measurement_r6 if p.measurement == "r6" else measurement_r3
-        y, D = meas(self.q, a, m, p.gravity, h, z)
-        self.q, self.b, self.P, _ = update(self.q, self.b, self.P, y, D, self._R(fa, fm))
-        self.innovation = y
-        return self.q.copy()
-
+    # ------------------------------------------------------------ compiled batch
     def run(self, rec: Recording) -> Estimate:
         """Filter a whole recording (compiled kernel), continuing from the current state
         (a fresh or reset filter starts anew).
@@ -380,37 +460,21 @@ class Eskf(Estimator):
         dt = np.empty(len(rec))
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
-        if self.q is None:
+        if self.state is None:
             n_init = max(1, int(np.searchsorted(rec.t, rec.t[0] + p.init_time, side="right")))
             self._init_state(rec.accel[:n_init], mag_T[:n_init])
-        n = len(rec)
-        q_out = np.empty((n, 4))
-        b_out = np.empty((n, 3))
-        innov = np.zeros((n, 6))
-        pdiag = np.empty((n, 6))
-        P_end = np.empty((6, 6))
-        state_end = np.empty(6)
-        skipped = np.zeros(n, np.bool_)
-        lp0 = np.zeros(3) if self.acc_lp is None else np.asarray(self.acc_lp, float)
-        mode = kern.MODE_R6 if p.measurement == "r6" else kern.MODE_R3
-        kern.run_batch(
-            np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
-            np.ascontiguousarray(mag_T / self.b0_mag), dt, self.q.copy(), self.b.copy(),
-            self.P.copy(), p.gyro_noise**2, p.bias_rw**2, p.accel_noise**2, p.mag_noise**2,
-            p.gravity, self.dip[0], self.dip[1], 0.0 if p.inclination_known else p.dip_tau,
-            p.accel_lowpass_tau, p.accel_gate, p.mag_gate, mode,
-            q_out, b_out, innov, pdiag, P_end, lp0, self.acc_lp is not None, state_end,
-            skipped)
-        self.q, self.b, self.P = q_out[-1].copy(), b_out[-1].copy(), P_end
-        self.dip = (float(state_end[0]), float(state_end[1]))
-        self.acc_lp = state_end[2:5].copy() if state_end[5] else None
+        inputs = kern.Inputs(np.ascontiguousarray(rec.gyro, float),
+                             np.ascontiguousarray(rec.accel, float),
+                             np.ascontiguousarray(mag_T / self.b0_mag), dt)
+        out = kern.new_outputs(len(rec))
+        kern.run_batch(inputs, self.state, kern.coefficients(p), out)
         self.t_last = float(rec.t[-1])
         r = 6 if p.measurement == "r6" else 3
         return Estimate(
-            t=rec.t.copy(), q=q_out, estimator=self.name, params=p.as_dict(),
+            t=rec.t.copy(), q=out.q, estimator=self.name, params=p.as_dict(),
             frames={"reference": "ENU", "body": rec.frames.get("body", "sensor")},
-            signals={"bias_rad_s": b_out, "innovation": innov[:, :r], "cov_diag": pdiag,
-                     "update_skipped": skipped},
+            signals={"bias_rad_s": out.bias, "innovation": out.innovation[:, :r],
+                     "cov_diag": out.cov_diag, "update_skipped": out.skipped},
         )
 
 
@@ -445,81 +509,157 @@ def paper_gain_operations(n: int, r: int) -> dict[str, int]:
             "add": n * n * r + 2 * n * r * r - 2 * n * r + r**3}
 
 
-class _Counted:
-    """A float that counts the arithmetic done with it (shared counter dict)."""
+class OpTape:
+    """The record of a computation run on ``Traced`` numbers: one line ``tN = a op b`` per
+    arithmetic operation (``lines``) and their ``counts`` by kind (``mul``, ``div``, ``add``
+    for additions and subtractions). The one operation tracer of the project: it counts
+    the operations of the update for the paper's comparison and writes the straight-line
+    kernel (``tools/codegen_eskf.py``)."""
 
-    __slots__ = ("v", "c")
+    def __init__(self):
+        self.lines: list[str] = []
+        self.counts = {"mul": 0, "div": 0, "add": 0}
 
-    def __init__(self, v, c):
+    def input(self, name: str, value: float) -> Traced:
+        """A named input (no line: the generated code loads it)."""
+        return Traced(value, name, self)
+
+    def record(self, expr: str, kind: str, value: float) -> Traced:
+        self.counts[kind] += 1
+        name = f"t{len(self.lines) + 1}"
+        self.lines.append(f"{name} = {expr}")
+        return Traced(value, name, self)
+
+
+class Traced:
+    """A float that records each operation done with it on its ``OpTape`` (and carries its
+    value, so a traced run can be checked against numpy)."""
+
+    __slots__ = ("v", "name", "tape")
+
+    def __init__(self, v, name: str, tape: OpTape):
         self.v = float(v)
-        self.c = c
+        self.name = name
+        self.tape = tape
 
-    def _o(self, other):
-        return other.v if isinstance(other, _Counted) else float(other)
+    @staticmethod
+    def _nv(o) -> tuple[str, float]:
+        return (o.name, o.v) if isinstance(o, Traced) else (repr(float(o)), float(o))
 
     def __mul__(self, o):
-        self.c["mul"] += 1
-        return _Counted(self.v * self._o(o), self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{self.name} * {n}", "mul", self.v * v)
 
-    __rmul__ = __mul__
+    def __rmul__(self, o):
+        n, v = self._nv(o)
+        return self.tape.record(f"{n} * {self.name}", "mul", v * self.v)
 
     def __truediv__(self, o):
-        self.c["div"] += 1
-        return _Counted(self.v / self._o(o), self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{self.name} / {n}", "div", self.v / v)
 
     def __rtruediv__(self, o):
-        self.c["div"] += 1
-        return _Counted(self._o(o) / self.v, self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{n} / {self.name}", "div", v / self.v)
 
     def __add__(self, o):
-        self.c["add"] += 1
-        return _Counted(self.v + self._o(o), self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{self.name} + {n}", "add", self.v + v)
 
-    __radd__ = __add__
+    def __radd__(self, o):
+        n, v = self._nv(o)
+        return self.tape.record(f"{n} + {self.name}", "add", v + self.v)
 
     def __sub__(self, o):
-        self.c["add"] += 1
-        return _Counted(self.v - self._o(o), self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{self.name} - {n}", "add", self.v - v)
 
     def __rsub__(self, o):
-        self.c["add"] += 1
-        return _Counted(self._o(o) - self.v, self.c)
+        n, v = self._nv(o)
+        return self.tape.record(f"{n} - {self.name}", "add", v - self.v)
 
 
-def count_gain_operations(r: int, rng: np.random.Generator | None = None) -> dict[str, int]:
-    """Operations the implemented gain (``gnomon.kernels.eskf.gain``, the source the
-    kernel compiles) performs for ``n = 6`` states and ``r`` measurements.
+@dataclass(frozen=True)
+class UpdateTrace:
+    """``trace_update``'s result: the tape's ``lines``; ``outputs`` maps ``"P{i}{j}"``
+    (upper triangle) and ``"dx{i}"`` to the names holding them; the operation counts of
+    ``gain`` and of ``joseph`` (which includes ``dx = K y``)."""
 
-    Runs that function on counting numbers. Returns ``mul`` (multiplications),
-    ``div`` (divisions), ``add`` (additions and subtractions) and ``mul_div``
-    (multiplications + divisions, comparable with the paper's M).
-    Also checks the counted run's gain against numpy (raises if wrong).
+    r: int
+    lines: list[str]
+    outputs: dict[str, str]
+    gain_counts: dict[str, int]
+    joseph_counts: dict[str, int]
+
+
+def trace_update(r: int, rng: np.random.Generator | None = None) -> UpdateTrace:
+    """Run the kernel's correction source (``gnomon.kernels.eskf.gain`` then ``joseph``)
+    on ``Traced`` numbers for ``n = 6`` states and ``r`` measurements.
+
+    The inputs are named ``p{i}{j}`` (P, symmetric: one name per pair), ``d{i}{j}`` (D1),
+    ``rd{i}`` (diagonal of R), ``y{i}``, with random values (SPD ``P``); the traced gain,
+    covariance and error estimate are checked against numpy (raises if wrong).
     """
-    from gnomon.kernels.eskf import gain
+    from gnomon.kernels.eskf import gain, joseph
 
     rng = rng or np.random.default_rng(0)
-    c = {"mul": 0, "div": 0, "add": 0}
-    G = rng.normal(size=(6, 6))
-    P = G @ G.T + 6 * np.eye(6)
+    A = rng.normal(size=(6, 6))
+    P = A @ A.T + 6 * np.eye(6)
     D1 = rng.normal(size=(r, 3))
     Rd = rng.uniform(0.5, 1.5, r)
-
-    def wrap(a):
-        out = np.empty(a.shape, dtype=object)
-        for idx in np.ndindex(a.shape):
-            out[idx] = _Counted(a[idx], c)
-        return out
-
-    PDt = np.empty((6, r), dtype=object)
+    y = rng.normal(size=r)
+    tape = OpTape()
+    Pt = np.empty((6, 6), dtype=object)
+    for i in range(6):
+        for j in range(i, 6):
+            Pt[i, j] = Pt[j, i] = tape.input(f"p{i}{j}", P[i, j])
+    D1t = np.array([[tape.input(f"d{i}{j}", D1[i, j]) for j in range(3)] for i in range(r)],
+                   dtype=object)
+    Rdt = np.array([tape.input(f"rd{i}", Rd[i]) for i in range(r)], dtype=object)
+    yt = np.array([tape.input(f"y{i}", y[i]) for i in range(r)], dtype=object)
+    PDt, K, G = (np.empty((6, r), dtype=object) for _ in range(3))
     S = np.empty((r, r), dtype=object)
-    K = np.empty((6, r), dtype=object)
-    Pc, D1c, Rc = wrap(P), wrap(D1), wrap(Rd)
-    c.update(mul=0, div=0, add=0)
-    gain(Pc, D1c, Rc, r, PDt, S, K)
-    Kv = np.array([[k.v for k in row] for row in K])
+    L = np.empty((6, 3), dtype=object)
+    M = np.empty((6, 6), dtype=object)
+    dx = np.empty(6, dtype=object)
+    gain(Pt, D1t, Rdt, r, PDt, S, K)
+    gain_counts = dict(tape.counts)
+    joseph(Pt, D1t, Rdt, yt, K, r, L, M, G, dx)
+    joseph_counts = {k: tape.counts[k] - gain_counts[k] for k in tape.counts}
+    # the traced arithmetic against numpy: the gain, the Joseph covariance, the error
     D = np.zeros((r, 6))
     D[:, :3] = D1
     K_ref = P @ D.T @ np.linalg.inv(D @ P @ D.T + np.diag(Rd))
-    if not np.allclose(Kv, K_ref, rtol=1e-9, atol=1e-12):
-        raise AssertionError("counted gain disagrees with numpy")
+    IKD = np.eye(6) - K_ref @ D
+    P_ref = IKD @ P @ IKD.T + K_ref @ np.diag(Rd) @ K_ref.T
+    value = np.vectorize(lambda t: t.v, otypes=[float])
+    upper = np.triu_indices(6)
+    if not (np.allclose(value(K), K_ref, rtol=1e-9, atol=1e-12)
+            and np.allclose(value(Pt)[upper], P_ref[upper], rtol=1e-9, atol=1e-12)
+            and np.allclose(value(dx), K_ref @ y, rtol=1e-9, atol=1e-12)):
+        raise AssertionError("traced Kalman update disagrees with numpy")
+    outputs = {f"P{i}{j}": Pt[i, j].name for i in range(6) for j in range(i, 6)}
+    outputs.update({f"dx{i}": dx[i].name for i in range(6)})
+    return UpdateTrace(r, tape.lines, outputs, gain_counts, joseph_counts)
+
+
+def _with_mul_div(c: dict[str, int]) -> dict[str, int]:
     return {"mul": c["mul"], "div": c["div"], "add": c["add"], "mul_div": c["mul"] + c["div"]}
+
+
+def count_gain_operations(r: int, rng: np.random.Generator | None = None) -> dict[str, int]:
+    """Operations the implemented gain (``gnomon.kernels.eskf.gain``, the source of the
+    compiled kernel) performs for ``n = 6`` states and ``r`` measurements (``trace_update``).
+
+    Returns ``mul`` (multiplications), ``div`` (divisions), ``add`` (additions and
+    subtractions) and ``mul_div`` (multiplications + divisions, comparable with the
+    paper's M).
+    """
+    return _with_mul_div(trace_update(r, rng).gain_counts)
+
+
+def count_update_operations(r: int, rng: np.random.Generator | None = None) -> dict[str, int]:
+    """Operations of the whole implemented correction (``gain`` + ``joseph``, i.e. gain,
+    Joseph covariance and ``dx = K y``), keys as ``count_gain_operations``."""
+    t = trace_update(r, rng)
+    return _with_mul_div({k: t.gain_counts[k] + t.joseph_counts[k] for k in t.gain_counts})

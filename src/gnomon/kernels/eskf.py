@@ -1,46 +1,357 @@
-"""Compiled kernels of the error-state AHRS Kalman filter (seed 002, Bilous & Nesterenko).
+"""Compiled kernel of the error-state AHRS Kalman filter (seed 002, Bilous & Nesterenko).
 
-Readable twin: ``gnomon.estimators.eskf`` (numpy matrices); the tests compare the
-two sample by sample. Everything here is scalar arithmetic on small fixed-size
-arrays, exploiting the structure of the problem:
+Readable twin: ``gnomon.estimators.eskf.Eskf.update`` (numpy matrices, the same phases
+on the same ``STATE`` record); ``tests/test_eskf.py`` compares the two step by step.
 
-* the transition matrix ``Φ = [A  cI; 0  I]`` (``A = I - [ω̂×]dt``, ``c = -dt/2``)
-  is never formed as a 6x6 matrix;
-* the measurement matrix is ``D = [D1  0]`` (measurements do not see the bias),
-  so only its 3 attitude columns are stored and multiplied;
-* the innovation covariance is factorised ``S = L·diag(d)·Lᵀ`` (no square roots),
-  and only the upper triangles of symmetric matrices are computed.
+Shape (see ``gnomon.kernels``):
 
-``gain`` and ``joseph`` are deliberately plain Python functions (compiled with
-``njit`` below as the loop version ``correct``):
-``gnomon.estimators.eskf.count_gain_operations`` runs the very same source on
-counting numbers to report how many multiplications and additions the
-implementation performs (next to the paper's formula), and
-``gnomon.kernels._codegen_eskf`` traces them into the straight-line functions
-``eskf_unrolled.update_r3`` / ``update_r6`` that the batch run ``run_batch``
-uses (every intermediate a local scalar: about 2x faster than the loops).
+* ``Coefficients`` (``coefficients(params)``): the squared noise densities, gravity,
+  the gates, the time constants of the inclination estimate and of the accelerometer
+  low-pass, and the ``mode`` (``MODE_R6``, ``MODE_R3`` or ``MODE_PREDICT_ONLY``);
+* ``STATE`` (one-element structured array, ``new_state``): ``q`` (4,) = ``q_nb`` (ENU
+  from body, ``[w, x, y, z]``), ``bias`` (3,) rad/s, ``P`` (6, 6) covariance of the error
+  ``[δe; δb]``, the running inclination estimate ``dip_s`` (mean of ``a·m / (g|m|)``,
+  ``= -Z``) with its weight ``dip_count``, and the navigation-frame accelerometer
+  low-pass ``acc_lp`` (3,) m/s² with ``acc_lp_started``;
+* ``step`` = ``predict`` (gyro) → ``reference_and_gates`` (accelerometer and
+  magnetometer: variance gates, inclination) → ``accel_lowpass`` → ``measure_r6`` or
+  ``measure_r3`` (``y``, ``D1``, ``R``) → ``correct`` (gain, Joseph update, injection);
+* ``run_batch(inputs, state, coefficients, outputs)`` loops ``step`` over ``Inputs``
+  and writes ``Outputs``.
 
-Frames and units as in ``gnomon.estimators.eskf``: ``q = q_nb`` (ENU from body,
-``[w, x, y, z]``), gyro rad/s, accelerometer m/s², magnetometer normalised by
-the reference field magnitude (dimensionless).
+The structure of the problem is used throughout: the transition matrix
+``Φ = [A  cI; 0  I]`` (``A = I - [ω̂×]dt``, ``c = -dt/2``) is never formed; the
+measurement matrix is ``D = [D1  0]`` (measurements do not see the bias), so only its
+3 attitude columns are stored and multiplied; the innovation covariance is
+factorised ``S = L·diag(d)·Lᵀ`` (no square roots) and only upper triangles of
+symmetric matrices are computed.
 
+``gain`` and ``joseph`` (below, plain Python) are the arithmetic of the correction.
+They are not compiled here: ``tools/codegen_eskf.py`` traces them into the
+straight-line functions ``eskf_unrolled.update_r3`` / ``update_r6`` that ``correct``
+calls (every intermediate a local scalar), and
+``gnomon.estimators.eskf.count_update_operations`` runs the same source on counting
+numbers for the operation counts of the paper's comparison.
+
+Why generated rather than a plain loop kernel (issue #16). Measured on the shared
+2-core machine: a batch loop of prediction, measurement and correction over the same
+200 000 samples, the corrections swapped in one process, CPU-time medians of 15 and 21
+interleaved repeats (two runs), as a fraction of the generated kernel's speed:
+
+* ``gain``/``joseph`` as loops compiled with ``r`` a compile-time constant:
+  0.63-0.71 (r = 3), 0.65-0.67 (r = 6);
+* the same with the scratch matrices on the stack (an alloca: LLVM knows they alias
+  nothing and can keep them in registers): 0.96-1.00 (r = 3), 0.84-0.85 (r = 6);
+* and with loops reordered until LLVM unrolled them all at its default threshold:
+  1.05 (r = 3), 0.85-0.89 (r = 6). Only a raised global LLVM unroll threshold (a
+  process-wide option, not usable in a library) brought r = 6 to par.
+
+r = 6 stays outside the 10 % the issue allows (and the 5 % the filters may lose), so
+the generated code stays; its generator lives outside the package.
+
+This kernel against the former one (28 positional arguments, one function), same
+harness, defaults, 21 repeats: r = 3 0.98-1.04, r = 6 1.01-1.03, prediction only
+1.15-1.22; the whole ``EskfR3().run`` / ``EskfR6().run`` on 10⁶ samples: 1.05 / 1.01.
+
+Frames and units: gyro rad/s and accelerometer m/s² in the body frame, magnetometer
+normalised by the reference field magnitude (dimensionless), ``dt`` s.
 Importing this module imports numba; ``import gnomon`` does not.
 """
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from gnomon.kernels.eskf_unrolled import update_r3, update_r6
-from gnomon.kernels.quat import dcm, rotate_by
+from gnomon.kernels.linalg import clip, skew_into
+from gnomon.kernels.quat import dcm, mul, normalised, rotate, rotate_by, rotate_inv
+
+__all__ = [
+    "MODE_PREDICT_ONLY", "MODE_R3", "MODE_R6", "MAX_ABS_DIP", "STATE", "Coefficients",
+    "Inputs", "Outputs", "Work", "coefficients", "new_state", "new_outputs", "workspace",
+    "predict", "reference_and_gates", "accel_lowpass", "measure_r6", "measure_r3",
+    "correct", "inject", "gate_factor", "step", "run_batch", "gain", "joseph",
+]
 
 MODE_PREDICT_ONLY = 0
 MODE_R3 = 3
 MODE_R6 = 6
+#: |sin I| at most for the reference field (inclination below 87.4 deg): nearer the pole
+#: (or with |a| > g making a·m/(g|m|) exceed 1) H = sqrt(1 - s²) would vanish or be NaN
+MAX_ABS_DIP = 0.999
+
+# Every phase is inlined into the loop by numba itself (``inline="always"``): left to
+# LLVM's inliner, the same kernel ran 15-20 % slower with r = 3 and r = 6 and 2x slower
+# in prediction only (measured against the former single-function loop).
+_JIT = {"cache": True, "fastmath": True, "error_model": "numpy"}
 
 
-# ---------------------------------------------------------------- Kalman gain
+# ---------------------------------------------------------------- named records
+class Coefficients(NamedTuple):
+    """Values derived once from the parameters (``coefficients``), read by name."""
+
+    var_gyro: float    #: σ_g², (rad/s)²/Hz: gyro white-noise density squared
+    var_bias: float    #: σ_b², (rad/s)²/s: bias random walk squared
+    var_acc: float     #: σ_a², (m/s²)²: accelerometer noise per sample
+    var_mag: float     #: σ_m² (of |B0|)²: magnetometer noise per sample
+    gravity: float     #: g, m/s²
+    dip_tau: float     #: s, time constant of the inclination estimate (0: fixed)
+    acc_lp_tau: float  #: s, navigation-frame accelerometer low-pass (0: off)
+    gate_acc: float    #: m/s², | |a| - g | doubling the accelerometer variance (0: off)
+    gate_mag: float    #: 1, field deviation doubling the magnetometer variance (0: off)
+    mode: int          #: MODE_R6, MODE_R3 or MODE_PREDICT_ONLY
+
+
+def coefficients(params, predict_only: bool = False) -> Coefficients:
+    """``Coefficients`` of an ``EskfParams`` (read by attribute name; ``inclination_known``
+    fixes the inclination: ``dip_tau = 0``). ``predict_only``: gyro integration only."""
+    p = params
+    mode = MODE_PREDICT_ONLY if predict_only else (MODE_R6 if p.measurement == "r6" else MODE_R3)
+    return Coefficients(
+        var_gyro=p.gyro_noise**2, var_bias=p.bias_rw**2, var_acc=p.accel_noise**2,
+        var_mag=p.mag_noise**2, gravity=float(p.gravity),
+        dip_tau=0.0 if p.inclination_known else float(p.dip_tau),
+        acc_lp_tau=float(p.accel_lowpass_tau), gate_acc=float(p.accel_gate),
+        gate_mag=float(p.mag_gate), mode=mode)
+
+
+STATE = np.dtype([
+    ("q", np.float64, (4,)),          # q_nb, ENU from body, [w, x, y, z]
+    ("bias", np.float64, (3,)),       # gyro bias estimate, rad/s, body
+    ("P", np.float64, (6, 6)),        # covariance of [δe; δb] (rad², (rad/s)²)
+    ("dip_s", np.float64),            # running mean of a·m/(g|m|) = -Z (normalised field)
+    ("dip_count", np.float64),        # its weight, samples
+    ("acc_lp", np.float64, (3,)),     # low-passed accelerometer, navigation frame, m/s²
+    ("acc_lp_started", np.bool_),     # acc_lp holds a value
+], align=True)
+
+
+def new_state(q_nb, bias_rad_s, P, dip_s: float, dip_count: float, acc_lp=None) -> np.ndarray:
+    """A ``STATE`` array of one element (``acc_lp`` None: the low-pass starts anew)."""
+    st = np.zeros(1, STATE)
+    st["q"][0] = q_nb
+    st["bias"][0] = bias_rad_s
+    st["P"][0] = P
+    st["dip_s"][0] = dip_s
+    st["dip_count"][0] = dip_count
+    if acc_lp is not None:
+        st["acc_lp"][0] = acc_lp
+        st["acc_lp_started"][0] = True
+    return st
+
+
+class Inputs(NamedTuple):
+    """Samples of a run (C-contiguous float arrays)."""
+
+    gyro: np.ndarray   #: (N, 3) rad/s, body
+    accel: np.ndarray  #: (N, 3) m/s², body; a zero row is a dropout (prediction only)
+    mag: np.ndarray    #: (N, 3) normalised by |B0|, body; a zero row is a dropout
+    dt: np.ndarray     #: (N,) s, dt[k] = t[k] - t[k-1] (dt[0] as given, 0: no propagation)
+
+
+class Outputs(NamedTuple):
+    """Per-sample results written by ``run_batch`` (``new_outputs(n)``)."""
+
+    q: np.ndarray           #: (N, 4) q_nb after the sample
+    bias: np.ndarray        #: (N, 3) rad/s
+    innovation: np.ndarray  #: (N, 6), first r columns; left as given on skipped samples
+    cov_diag: np.ndarray    #: (N, 6) diagonal of P
+    skipped: np.ndarray     #: (N,) bool: accelerometer or magnetometer dropout
+
+
+def new_outputs(n: int) -> Outputs:
+    """``Outputs`` for ``n`` samples (innovation zeroed, skipped False)."""
+    return Outputs(np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 6)), np.empty((n, 6)),
+                   np.zeros(n, np.bool_))
+
+
+class Work(NamedTuple):
+    """Scratch arrays of one step (``workspace``), allocated once per batch."""
+
+    A: np.ndarray   #: (3, 3) I - [ω̂×] dt
+    T: np.ndarray   #: (3, 3) A P11 + c P21
+    U: np.ndarray   #: (3, 3) A P12 + c P22
+    y: np.ndarray   #: (6,) measurement (first r entries)
+    D1: np.ndarray  #: (6, 3) attitude columns of D (first r rows)
+    Rd: np.ndarray  #: (6,) diagonal of R (first r entries)
+    dx: np.ndarray  #: (6,) error estimate [δe; δb]
+
+
+@njit(**_JIT)
+def workspace():
+    """A ``Work`` of fresh scratch arrays."""
+    return Work(np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(6),
+                np.empty((6, 3)), np.empty(6), np.empty(6))
+
+
+# ---------------------------------------------------------------- phase 1: gyro prediction
+@njit(inline="always", **_JIT)
+def predict(s, c, gx, gy, gz, dt, A, T, U):
+    """Strapdown step on the record ``s``: ``q ← q ⊗ exp(ω̂ dt)``, ``P ← Φ P Φᵀ + Q``.
+
+    ``ω̂ = ω_measured - b`` (rad/s, body). ``Φ = [A  cI; 0  I]``, ``A = I - [ω̂×] dt``,
+    ``c = -dt/2``; ``Q = diag(σ_g² dt / 4 · I, σ_b² dt · I)``. A, T, U: (3, 3) scratch.
+    """
+    q, P = s.q, s.P
+    wx = gx - s.bias[0]
+    wy = gy - s.bias[1]
+    wz = gz - s.bias[2]
+    rotate_by(q, wx * dt, wy * dt, wz * dt)
+    # Φ P Φᵀ = [T Aᵀ + cU, U; Uᵀ, P22], T = A P11 + c P21, U = A P12 + c P22
+    cc = -0.5 * dt
+    A[0, 0] = 1.0
+    A[0, 1] = wz * dt
+    A[0, 2] = -wy * dt
+    A[1, 0] = -wz * dt
+    A[1, 1] = 1.0
+    A[1, 2] = wx * dt
+    A[2, 0] = wy * dt
+    A[2, 1] = -wx * dt
+    A[2, 2] = 1.0
+    for i in range(3):
+        for j in range(3):
+            T[i, j] = (A[i, 0] * P[0, j] + A[i, 1] * P[1, j] + A[i, 2] * P[2, j]
+                       + cc * P[3 + i, j])
+            U[i, j] = (A[i, 0] * P[0, 3 + j] + A[i, 1] * P[1, 3 + j] + A[i, 2] * P[2, 3 + j]
+                       + cc * P[3 + i, 3 + j])
+    qa = 0.25 * c.var_gyro * dt
+    qb = c.var_bias * dt
+    for i in range(3):
+        for j in range(i, 3):
+            v = T[i, 0] * A[j, 0] + T[i, 1] * A[j, 1] + T[i, 2] * A[j, 2] + cc * U[i, j]
+            if i == j:
+                v = v + qa
+            P[i, j] = v
+            P[j, i] = v
+    for i in range(3):
+        for j in range(3):
+            P[i, 3 + j] = U[i, j]
+            P[3 + j, i] = U[i, j]
+        P[3 + i, 3 + i] = P[3 + i, 3 + i] + qb
+
+
+# ---------------------------------------------------------------- phase 2: accel + mag
+@njit(inline="always", **_JIT)
+def gate_factor(dev, gate):
+    """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``: gating off)."""
+    if gate <= 0.0:
+        return 1.0
+    u = dev / gate
+    return 1.0 + u * u
+
+
+@njit(inline="always", **_JIT)
+def reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt):
+    """Variance gates and the reference field ``[0, H, -Z]`` for one usable sample.
+
+    ``fa = gate(| |a| - g |)``, ``fm = gate(max(| |m| - 1 |, |cos - s|))`` with
+    ``cos = a·m / (g |m|)`` (``= -Z`` when undisturbed: rotation invariant, so it can be
+    averaged while the body moves; dividing by g rather than |a| keeps accelerometer
+    noise from biasing it). When both gates are below 2 and ``dip_tau > 0``, the running
+    mean ``s`` moves: ``count += 1``, ``s += max(1/count, dt/dip_tau) (cos - s)``,
+    ``|s| <= MAX_ABS_DIP``. ``na``, ``nm``: the norms of a and m. Returns
+    ``(fa, fm, H, Z)`` with ``Z = -s``, ``H = sqrt(1 - s²)``.
+    """
+    cos_am = (ax * mx + ay * my + az * mz) / (c.gravity * nm)
+    fa = gate_factor(abs(na - c.gravity), c.gate_acc)
+    fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), c.gate_mag)
+    if c.dip_tau > 0.0 and fm < 2.0 and fa < 2.0:
+        s.dip_count += 1.0
+        w = max(1.0 / s.dip_count, dt / c.dip_tau)
+        s.dip_s = clip(s.dip_s + w * (cos_am - s.dip_s), MAX_ABS_DIP)
+    return fa, fm, math.sqrt(1.0 - s.dip_s * s.dip_s), -s.dip_s
+
+
+@njit(inline="always", **_JIT)
+def accel_lowpass(s, c, ax, ay, az, dt):
+    """Low-pass the accelerometer in the computed navigation frame; returns it in body.
+
+    ``lp ← lp + w (Ĉ_nb a - lp)``, ``w = min(1, dt/acc_lp_tau)`` (``w = 1`` when it
+    starts), returns ``Ĉ_bn lp``: gravity is constant in the navigation frame while a
+    linear acceleration averages out there (the idea of VQF's inertial-frame low-pass,
+    Laidig & Seel, Inf. Fusion 2023), so the filtered reading is the better gravity
+    measurement.
+    """
+    q, lp = s.q, s.acc_lp
+    if s.acc_lp_started:
+        w = min(1.0, dt / c.acc_lp_tau)
+    else:
+        lp[:] = 0.0
+        w = 1.0
+    nx, ny, nz = rotate(q[0], q[1], q[2], q[3], ax, ay, az)
+    lp[0] += w * (nx - lp[0])
+    lp[1] += w * (ny - lp[1])
+    lp[2] += w * (nz - lp[2])
+    s.acc_lp_started = True
+    return rotate_inv(q[0], q[1], q[2], q[3], lp[0], lp[1], lp[2])
+
+
+@njit(inline="always", **_JIT)
+def measure_r6(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, y, D1, Rd):
+    """Full model: ``y = [a - Ĉ_bn g_n; m - Ĉ_bn m_n]``, ``D1 = [2[â×]; 2[m̂×]]`` (6x3).
+
+    ``g_n = [0, 0, g]``, ``m_n = [0, H, -Z]`` (normalised field); ``Rd`` the diagonal of
+    ``R = diag(σ_a² fa I, σ_m² fm I)`` (``fa``, ``fm``: the gates' inflation).
+    """
+    _, _, _, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
+    # predicted readings in body: â = g C_nb[2, :], m̂ = H C_nb[1, :] - Z C_nb[2, :]
+    g = c.gravity
+    a0 = g * c20
+    a1 = g * c21
+    a2 = g * c22
+    m0 = mag_h * c10 - mag_z * c20
+    m1 = mag_h * c11 - mag_z * c21
+    m2 = mag_h * c12 - mag_z * c22
+    y[0] = ax - a0
+    y[1] = ay - a1
+    y[2] = az - a2
+    y[3] = mx - m0
+    y[4] = my - m1
+    y[5] = mz - m2
+    skew_into(D1, 0, 2.0, a0, a1, a2)
+    skew_into(D1, 3, 2.0, m0, m1, m2)
+    ra = c.var_acc * fa
+    rm = c.var_mag * fm
+    for i in range(3):
+        Rd[i] = ra
+        Rd[3 + i] = rm
+
+
+@njit(inline="always", **_JIT)
+def measure_r3(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, y, D1, Rd):
+    """Reduced model: ``y = [ã_x/g, ã_y/g, m̃_x/H]``, ``ã = Ĉ_nb a``, ``m̃ = Ĉ_nb m``.
+
+    ``D1 = D_n Ĉ_nb`` with ``D_n = [[0, -2, 0], [2, 0, 0], [0, 2 tan I, 2]]`` for the
+    body-frame error ``q = q̂ ⊗ δq`` (derivation in ``docs/estimators/eskf.md``); the
+    predicted measurement is zero. ``R = diag(σ_a² fa/g², σ_a² fa/g², σ_m² fm/H²)``.
+    """
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
+    ig = 1.0 / c.gravity
+    ih = 1.0 / mag_h
+    y[0] = (c00 * ax + c01 * ay + c02 * az) * ig
+    y[1] = (c10 * ax + c11 * ay + c12 * az) * ig
+    y[2] = (c00 * mx + c01 * my + c02 * mz) * ih
+    t2 = 2.0 * mag_z * ih
+    D1[0, 0] = -2.0 * c10
+    D1[0, 1] = -2.0 * c11
+    D1[0, 2] = -2.0 * c12
+    D1[1, 0] = 2.0 * c00
+    D1[1, 1] = 2.0 * c01
+    D1[1, 2] = 2.0 * c02
+    D1[2, 0] = t2 * c10 + 2.0 * c20
+    D1[2, 1] = t2 * c11 + 2.0 * c21
+    D1[2, 2] = t2 * c12 + 2.0 * c22
+    ra = c.var_acc * fa * ig * ig
+    Rd[0] = ra
+    Rd[1] = ra
+    Rd[2] = c.var_mag * fm * ih * ih
+
+
+# ---------------------------------------------------------------- phase 3: Kalman correction
 def gain(P, D1, Rd, r, PDt, S, K):
     """Kalman gain ``K = P Dᵀ (D P Dᵀ + R)⁻¹`` for ``D = [D1 0]`` (r x 6, bias columns zero).
 
@@ -49,8 +360,8 @@ def gain(P, D1, Rd, r, PDt, S, K):
     factorisation ``S = L diag(d) Lᵀ`` (L unit lower-triangular) stored as
     ``S[i, j] = L_ij d_j`` below the diagonal and ``1/d_j`` on it; K (6, r) the gain.
 
-    Plain Python on purpose: compiled below as ``gain_nb`` and also run on
-    counting numbers by ``count_gain_operations``.
+    Plain Python on purpose: traced into ``eskf_unrolled`` and run on counting numbers
+    (module docstring).
     """
     # P Dᵀ: only the first three columns of P meet the non-zero columns of D
     for i in range(6):
@@ -92,147 +403,6 @@ def gain(P, D1, Rd, r, PDt, S, K):
             K[i, j] = K[i, j] - s * S[j, j]
 
 
-gain_nb = njit(cache=True, fastmath=True, error_model="numpy")(gain)
-
-
-# ---------------------------------------------------------------- propagation
-@njit(cache=True, fastmath=True, error_model="numpy")
-def propagate(q, b, P, wx_m, wy_m, wz_m, dt, var_gyro, var_bias, A, T, U):
-    """One strapdown step in place: ``q ← q ⊗ exp(ω̂ dt)``, ``P ← Φ P Φᵀ + Q``.
-
-    ``ω̂ = ω_measured - b`` (rad/s, body). ``Φ = [A  cI; 0  I]``, ``A = I - [ω̂×] dt``,
-    ``c = -dt/2``; ``Q = diag(var_gyro dt / 4 · I, var_bias dt · I)`` with the
-    squared densities ``var_gyro`` ((rad/s)²/Hz) and ``var_bias`` ((rad/s)²/s).
-    A, T, U are (3, 3) scratch arrays.
-    """
-    wx = wx_m - b[0]
-    wy = wy_m - b[1]
-    wz = wz_m - b[2]
-    # quaternion exponential of the rotation vector ω̂ dt
-    rotate_by(q, wx * dt, wy * dt, wz * dt)
-    # covariance: Φ P Φᵀ = [T Aᵀ + cU, U; Uᵀ, P22], T = A P11 + c P21, U = A P12 + c P22
-    c = -0.5 * dt
-    A[0, 0] = 1.0
-    A[0, 1] = wz * dt
-    A[0, 2] = -wy * dt
-    A[1, 0] = -wz * dt
-    A[1, 1] = 1.0
-    A[1, 2] = wx * dt
-    A[2, 0] = wy * dt
-    A[2, 1] = -wx * dt
-    A[2, 2] = 1.0
-    for i in range(3):
-        for j in range(3):
-            T[i, j] = (A[i, 0] * P[0, j] + A[i, 1] * P[1, j] + A[i, 2] * P[2, j]
-                       + c * P[3 + i, j])
-            U[i, j] = (A[i, 0] * P[0, 3 + j] + A[i, 1] * P[1, 3 + j] + A[i, 2] * P[2, 3 + j]
-                       + c * P[3 + i, 3 + j])
-    qa = 0.25 * var_gyro * dt
-    qb = var_bias * dt
-    for i in range(3):
-        for j in range(i, 3):
-            v = T[i, 0] * A[j, 0] + T[i, 1] * A[j, 1] + T[i, 2] * A[j, 2] + c * U[i, j]
-            if i == j:
-                v = v + qa
-            P[i, j] = v
-            P[j, i] = v
-    for i in range(3):
-        for j in range(3):
-            P[i, 3 + j] = U[i, j]
-            P[3 + j, i] = U[i, j]
-        P[3 + i, 3 + i] = P[3 + i, 3 + i] + qb
-
-
-# ---------------------------------------------------------------- measurement models
-@njit(cache=True, fastmath=True, error_model="numpy")
-def measure_r6(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag, fa, fm, y, D1, Rd):
-    """Full model: ``y = [a - Ĉ_bn g_n; m - Ĉ_bn m_n]``, ``D1 = [2[â×]; 2[m̂×]]`` (6x3).
-
-    ``g_n = [0, 0, g]``, ``m_n = [0, H, -Z]`` (normalised field). ``fa``, ``fm``
-    inflate the accelerometer / magnetometer variances (disturbance gating).
-    """
-    w, x, y_, z = q[0], q[1], q[2], q[3]
-    # rows of C_nb = columns of C_bn; only what is needed: C_bn[:, 1] and C_bn[:, 2]
-    # C_nb[1, :] (north row) and C_nb[2, :] (up row)
-    c10 = 2.0 * (x * y_ + w * z)
-    c11 = 1.0 - 2.0 * (x * x + z * z)
-    c12 = 2.0 * (y_ * z - w * x)
-    c20 = 2.0 * (x * z - w * y_)
-    c21 = 2.0 * (y_ * z + w * x)
-    c22 = 1.0 - 2.0 * (x * x + y_ * y_)
-    # predicted readings in body: â = g · C_nb[2, :], m̂ = H C_nb[1, :] - Z C_nb[2, :]
-    a0 = g * c20
-    a1 = g * c21
-    a2 = g * c22
-    m0 = mag_h * c10 - mag_z * c20
-    m1 = mag_h * c11 - mag_z * c21
-    m2 = mag_h * c12 - mag_z * c22
-    y[0] = ax - a0
-    y[1] = ay - a1
-    y[2] = az - a2
-    y[3] = mx - m0
-    y[4] = my - m1
-    y[5] = mz - m2
-    # D1 = 2 [v×] = [[0, -2v2, 2v1], [2v2, 0, -2v0], [-2v1, 2v0, 0]]
-    D1[0, 0] = 0.0
-    D1[0, 1] = -2.0 * a2
-    D1[0, 2] = 2.0 * a1
-    D1[1, 0] = 2.0 * a2
-    D1[1, 1] = 0.0
-    D1[1, 2] = -2.0 * a0
-    D1[2, 0] = -2.0 * a1
-    D1[2, 1] = 2.0 * a0
-    D1[2, 2] = 0.0
-    D1[3, 0] = 0.0
-    D1[3, 1] = -2.0 * m2
-    D1[3, 2] = 2.0 * m1
-    D1[4, 0] = 2.0 * m2
-    D1[4, 1] = 0.0
-    D1[4, 2] = -2.0 * m0
-    D1[5, 0] = -2.0 * m1
-    D1[5, 1] = 2.0 * m0
-    D1[5, 2] = 0.0
-    ra = var_acc * fa
-    rm = var_mag * fm
-    Rd[0] = ra
-    Rd[1] = ra
-    Rd[2] = ra
-    Rd[3] = rm
-    Rd[4] = rm
-    Rd[5] = rm
-
-
-@njit(cache=True, fastmath=True, error_model="numpy")
-def measure_r3(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag, fa, fm, y, D1, Rd):
-    """Reduced model: ``y = [ã_x/g, ã_y/g, m̃_x/H]``, ``ã = Ĉ_nb a``, ``m̃ = Ĉ_nb m``.
-
-    ``D1 = D_n Ĉ_nb`` with ``D_n = [[0, -2, 0], [2, 0, 0], [0, 2 tan I, 2]]`` for the
-    body-frame error ``q = q̂ ⊗ δq`` (derivation in ``docs/estimators/eskf.md``).
-    The predicted measurement is zero.
-    """
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
-    ig = 1.0 / g
-    ih = 1.0 / mag_h
-    y[0] = (c00 * ax + c01 * ay + c02 * az) * ig
-    y[1] = (c10 * ax + c11 * ay + c12 * az) * ig
-    y[2] = (c00 * mx + c01 * my + c02 * mz) * ih
-    t2 = 2.0 * mag_z * ih
-    D1[0, 0] = -2.0 * c10
-    D1[0, 1] = -2.0 * c11
-    D1[0, 2] = -2.0 * c12
-    D1[1, 0] = 2.0 * c00
-    D1[1, 1] = 2.0 * c01
-    D1[1, 2] = 2.0 * c02
-    D1[2, 0] = t2 * c10 + 2.0 * c20
-    D1[2, 1] = t2 * c11 + 2.0 * c21
-    D1[2, 2] = t2 * c12 + 2.0 * c22
-    ra = var_acc * fa * ig * ig
-    Rd[0] = ra
-    Rd[1] = ra
-    Rd[2] = var_mag * fm * ih * ih
-
-
-# ---------------------------------------------------------------- update
 def joseph(P, D1, Rd, y, K, r, L, M, G, dx):
     """Error estimate ``dx = K y`` and Joseph-form covariance (upper triangle into ``P``).
 
@@ -242,8 +412,7 @@ def joseph(P, D1, Rd, y, K, r, L, M, G, dx):
     for the exact optimal gain, which is what makes the form robust to
     rounding and to a sub-optimal gain), ``P ← N + G Kᵀ``: only the upper
     triangle ``P[i, j], j >= i`` is written (the caller mirrors it, which is
-    the symmetrisation). Plain Python, compiled below and traced by the code
-    generator like ``gain``.
+    the symmetrisation). Plain Python, like ``gain``.
     """
     for i in range(6):
         s = K[i, 0] * y[0]
@@ -272,168 +441,84 @@ def joseph(P, D1, Rd, y, K, r, L, M, G, dx):
             P[i, j] = M[i, j] + s
 
 
-joseph_nb = njit(cache=True, fastmath=True, error_model="numpy")(joseph)
-
-
-@njit(cache=True, fastmath=True, error_model="numpy")
+@njit(inline="always", **_JIT)
 def inject(q, b, dx):
     """``q ← normalise(q ⊗ [1, δe])``, ``b ← b + δb`` (the error state is then reset to zero)."""
-    ex, ey, ez = dx[0], dx[1], dx[2]
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    nw = qw - qx * ex - qy * ey - qz * ez
-    nx = qw * ex + qx + qy * ez - qz * ey
-    ny = qw * ey - qx * ez + qy + qz * ex
-    nz = qw * ez + qx * ey - qy * ex + qz
-    inv = 1.0 / np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0] = nw * inv
-    q[1] = nx * inv
-    q[2] = ny * inv
-    q[3] = nz * inv
+    w, x, y, z = mul(q[0], q[1], q[2], q[3], 1.0, dx[0], dx[1], dx[2])
+    q[0], q[1], q[2], q[3] = normalised(w, x, y, z)
     b[0] += dx[3]
     b[1] += dx[4]
     b[2] += dx[5]
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
-def correct(q, b, P, y, D1, Rd, r, PDt, S, K, L, M, dx):
-    """Kalman update in place with loops (``gain``, ``joseph``, mirror, ``inject``).
-
-    The batch run uses the straight-line twins generated from the same two
-    functions (``eskf_unrolled.correct_r3`` / ``correct_r6``); this loop
-    version is kept as the readable compiled form and tested against them.
-    """
-    gain_nb(P, D1, Rd, r, PDt, S, K)
-    joseph_nb(P, D1, Rd, y, K, r, L, M, PDt, dx)
-    for i in range(6):
-        for j in range(i + 1, 6):
-            P[j, i] = P[i, j]
-    inject(q, b, dx)
+@njit(inline="always", **_JIT)
+def correct(s, mode, y, D1, Rd, dx):
+    """Kalman correction of the record ``s``: ``gain`` + ``joseph`` + mirror of P (the
+    straight-line ``eskf_unrolled.update_r6`` / ``update_r3``), then ``inject``."""
+    if mode == MODE_R6:
+        update_r6(s.P, D1, Rd, y, dx)
+    else:
+        update_r3(s.P, D1, Rd, y, dx)
+    inject(s.q, s.bias, dx)
 
 
-@njit(cache=True, fastmath=True, error_model="numpy")
-def accel_lowpass(q, ax, ay, az, lp, w, out):
-    """Low-pass the accelerometer in the computed navigation frame (in place in ``lp``).
+# ---------------------------------------------------------------- step and batch
+@njit(inline="always", **_JIT)
+def step(s, c, mode, inputs, k, w):
+    """Sample ``k`` of ``inputs`` on the record ``s`` (``w``: a ``Work``; ``mode`` is
+    ``c.mode``, a constant in each of ``run_batch``'s loops). Returns whether the
+    correction was skipped (an accelerometer or magnetometer dropout: a zero vector);
+    else ``w.y`` holds the measurement."""
+    dt = inputs.dt[k]
+    predict(s, c, inputs.gyro[k, 0], inputs.gyro[k, 1], inputs.gyro[k, 2], dt, w.A, w.T, w.U)
+    if mode == MODE_PREDICT_ONLY:
+        return False
+    ax, ay, az = inputs.accel[k, 0], inputs.accel[k, 1], inputs.accel[k, 2]
+    mx, my, mz = inputs.mag[k, 0], inputs.mag[k, 1], inputs.mag[k, 2]
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    if not (na > 0.0 and nm > 0.0):
+        return True
+    fa, fm, mag_h, mag_z = reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt)
+    if c.acc_lp_tau > 0.0:
+        ax, ay, az = accel_lowpass(s, c, ax, ay, az, dt)
+    if mode == MODE_R6:
+        measure_r6(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
+    else:
+        measure_r3(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
+    correct(s, mode, w.y, w.D1, w.Rd, w.dx)
+    return False
 
-    ``lp ← lp + w (Ĉ_nb a - lp)`` (``w = 1`` restarts it), ``out = Ĉ_bn lp``: gravity
-    is constant in the navigation frame while a linear acceleration averages out there
-    (the idea of VQF's inertial-frame low-pass, Laidig & Seel 2023), so the filtered
-    reading, rotated back into the body frame, is the better gravity measurement.
-    """
-    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
-    lp[0] += w * (c00 * ax + c01 * ay + c02 * az - lp[0])
-    lp[1] += w * (c10 * ax + c11 * ay + c12 * az - lp[1])
-    lp[2] += w * (c20 * ax + c21 * ay + c22 * az - lp[2])
-    out[0] = c00 * lp[0] + c10 * lp[1] + c20 * lp[2]
-    out[1] = c01 * lp[0] + c11 * lp[1] + c21 * lp[2]
-    out[2] = c02 * lp[0] + c12 * lp[1] + c22 * lp[2]
 
-
-@njit(cache=True, fastmath=True, error_model="numpy")
-def gate_factor(dev, gate):
-    """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``: gating off)."""
-    if gate <= 0.0:
-        return 1.0
-    u = dev / gate
-    return 1.0 + u * u
-
-
-# ---------------------------------------------------------------- batch
-@njit(cache=True, fastmath=True, error_model="numpy")
-def run_batch(gyro, accel, mag, dt, q0, b0, P0, var_gyro, var_bias, var_acc, var_mag,
-              g, dip_s0, dip_n0, dip_tau, acc_lp_tau, gate_acc, gate_mag, mode,
-              q_out, b_out, innov_out, pdiag_out, P_out, lp0, lp_started0, state_out,
-              skipped_out):
-    """Run the filter over N samples; outputs are written into the given arrays.
-
-    gyro, accel (N, 3) rad/s and m/s²; mag (N, 3) normalised by the reference
-    field magnitude; dt (N,) s, ``dt[k] = t[k] - t[k-1]`` (``dt[0]`` is used as
-    given, 0 for no propagation at the first sample). q0 (4,), b0 (3,), P0 (6, 6)
-    initial state. The reference field ``[0, H, -Z]`` (normalised) follows the
-    running mean ``s`` of ``a·m / (g |m|)`` (``= cos(angle(a, m)) = -Z`` without the
-    bias a normalised noisy accelerometer would add), started at ``dip_s0`` with
-    weight ``dip_n0`` samples, then ``s += w (cos - s)``, ``w = max(1/count, dt/dip_tau)``
-    (``dip_tau <= 0``: fixed at ``dip_s0``). ``acc_lp_tau > 0``: the accelerometer
-    is low-pass filtered in the computed navigation frame first (``accel_lowpass``).
-    mode: 0 predict only, 3 reduced,
-    6 full measurement model.
-    ``lp0`` (3,): the low-pass state of an earlier run, used when ``lp_started0`` (else the
-    low-pass starts at the first sample; no NaN sentinel: this kernel uses fastmath).
-    A sample whose accelerometer or magnetometer vector is zero (a dropout) is only
-    propagated: ``skipped_out[k]`` is set and its innovation row left as given.
-    Outputs: q_out (N, 4), b_out (N, 3), innov_out (N, 6) (first r columns
-    used), pdiag_out (N, 6), P_out (6, 6) the final covariance, ``state_out`` (6,)
-    the final ``[dip_s, dip_count, lp_x, lp_y, lp_z, lp_started]`` (to continue later).
-    """
-    n = gyro.shape[0]
-    q = q0.copy()
-    b = b0.copy()
-    P = P0.copy()
-    A = np.empty((3, 3))
-    T = np.empty((3, 3))
-    U = np.empty((3, 3))
+@njit(inline="always", **_JIT)
+def _loop(inputs, s, c, outputs, w, mode):
+    """The loop over samples for one ``mode`` (a constant: its branches fold away)."""
     r = 6 if mode == MODE_R6 else 3
-    y = np.empty(6)
-    D1 = np.empty((6, 3))
-    Rd = np.empty(6)
-    dx = np.empty(6)
-    dip_s = dip_s0
-    count = dip_n0
-    lp = lp0.copy()
-    lp_started = lp_started0
-    acc_f = np.empty(3)
-    for k in range(n):
-        propagate(q, b, P, gyro[k, 0], gyro[k, 1], gyro[k, 2], dt[k], var_gyro, var_bias, A, T, U)
-        skipped_out[k] = False
-        if mode != MODE_PREDICT_ONLY:
-            ax, ay, az = accel[k, 0], accel[k, 1], accel[k, 2]
-            mx, my, mz = mag[k, 0], mag[k, 1], mag[k, 2]
-            na = np.sqrt(ax * ax + ay * ay + az * az)
-            nm = np.sqrt(mx * mx + my * my + mz * mz)
-            if not (na > 0.0 and nm > 0.0):
-                skipped_out[k] = True
-        if mode != MODE_PREDICT_ONLY and not skipped_out[k]:
-            cos_am = (ax * mx + ay * my + az * mz) / (g * nm)
-            fa = gate_factor(abs(na - g), gate_acc)
-            fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - dip_s)), gate_mag)
-            if dip_tau > 0.0 and fm < 2.0 and fa < 2.0:
-                count += 1.0
-                w = max(1.0 / count, dt[k] / dip_tau)
-                dip_s += w * (cos_am - dip_s)
-                dip_s = min(max(dip_s, -0.999), 0.999)  # as estimators.eskf.update_dip
-            mag_z = -dip_s
-            mag_h = np.sqrt(1.0 - dip_s * dip_s)
-            if acc_lp_tau > 0.0:
-                if not lp_started:
-                    lp[:] = 0.0
-                accel_lowpass(q, ax, ay, az, lp,
-                              min(1.0, dt[k] / acc_lp_tau) if lp_started else 1.0, acc_f)
-                lp_started = True
-                ax, ay, az = acc_f[0], acc_f[1], acc_f[2]
-            # straight-line updates generated from gain + joseph (eskf_unrolled)
-            if mode == MODE_R6:
-                measure_r6(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag,
-                           fa, fm, y, D1, Rd)
-                update_r6(P, D1, Rd, y, dx)
-                inject(q, b, dx)
-            else:
-                measure_r3(q, ax, ay, az, mx, my, mz, g, mag_h, mag_z, var_acc, var_mag,
-                           fa, fm, y, D1, Rd)
-                update_r3(P, D1, Rd, y, dx)
-                inject(q, b, dx)
+    for k in range(inputs.dt.shape[0]):
+        skipped = step(s, c, mode, inputs, k, w)
+        outputs.skipped[k] = skipped
+        if mode != MODE_PREDICT_ONLY and not skipped:
             for j in range(r):
-                innov_out[k, j] = y[j]
+                outputs.innovation[k, j] = w.y[j]
         for j in range(4):
-            q_out[k, j] = q[j]
+            outputs.q[k, j] = s.q[j]
         for j in range(3):
-            b_out[k, j] = b[j]
+            outputs.bias[k, j] = s.bias[j]
         for j in range(6):
-            pdiag_out[k, j] = P[j, j]
-    for i in range(6):
-        for j in range(6):
-            P_out[i, j] = P[i, j]
-    state_out[5] = 1.0 if lp_started else 0.0
-    state_out[0] = dip_s
-    state_out[1] = count
-    state_out[2] = lp[0]
-    state_out[3] = lp[1]
-    state_out[4] = lp[2]
+            outputs.cov_diag[k, j] = s.P[j, j]
+
+
+@njit(**_JIT)
+def run_batch(inputs, state, c, outputs):
+    """Run the filter over ``inputs`` (``Inputs``), continuing from ``state`` (a ``STATE``
+    array of one element, updated in place) with ``c`` (``Coefficients``); writes
+    ``outputs`` (``Outputs``, N rows). One loop per mode, each compiled with the mode a
+    constant (as if written three times)."""
+    s = state[0]
+    w = workspace()
+    if c.mode == MODE_R6:
+        _loop(inputs, s, c, outputs, w, MODE_R6)
+    elif c.mode == MODE_R3:
+        _loop(inputs, s, c, outputs, w, MODE_R3)
+    else:
+        _loop(inputs, s, c, outputs, w, MODE_PREDICT_ONLY)

@@ -161,3 +161,18 @@ def mat3_tmul(a, b):
             a[2] * b[0] + a[5] * b[3] + a[8] * b[6],
             a[2] * b[1] + a[5] * b[4] + a[8] * b[7],
             a[2] * b[2] + a[5] * b[5] + a[8] * b[8])
+
+
+@njit(inline="always")
+def skew_into(out, row, scale, vx, vy, vz):
+    """``out[row:row + 3, 0:3] <- scale·[v×]`` in place (``[v×] b = v × b``): a block of a
+    measurement matrix such as ``D = [2[â×]; 2[m̂×]]``, written without allocating."""
+    out[row, 0] = 0.0
+    out[row, 1] = -scale * vz
+    out[row, 2] = scale * vy
+    out[row + 1, 0] = scale * vz
+    out[row + 1, 1] = 0.0
+    out[row + 1, 2] = -scale * vx
+    out[row + 2, 0] = -scale * vy
+    out[row + 2, 1] = scale * vx
+    out[row + 2, 2] = 0.0
