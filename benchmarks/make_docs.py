@@ -61,8 +61,8 @@ def main() -> None:
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
     ap.add_argument("--quick", action="store_true", help="quick speed benchmark")
     args = ap.parse_args()
-    from gnomon.speed import markdown_table
     from gnomon.datasets import broad_dir
+    from gnomon.speed import markdown_table
 
     data = args.broad or broad_dir() or ROOT / "tests" / "data" / "broad"
     broad = gnomon_json("benchmark", "broad", "--data", str(data))
