@@ -108,3 +108,178 @@ def _write_bag(tmp, kind, t_i, t_m, q, gyro, accel, mag, extra_imu_topic):
             else:
                 writer.write(c_mag, stamp_ns, ser(mag_msg(k), Mag.__msgtype__))
     return path
+
+
+def _times(rate_hz: float, seconds: float, start: float = 0.0, jitter: float = 0.0,
+           seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = start + np.arange(int(seconds * rate_hz)) / rate_hz
+    return t + rng.uniform(0, jitter, t.size) if jitter else t
+
+
+def write_sensorlogger(dst: Path, *, platform="android", zipped=True, seconds=2.0,
+                       standardised=False) -> Path:
+    """A Sensor Logger export from its documented layout (awesome-sensor-logger UNITS.md,
+    COORDINATES.md): ``time`` ns since the epoch, ``seconds_elapsed``, columns ``z,y,x``;
+    gyro 100 Hz, accelerometer 100 Hz (other time stamps), magnetometer 50 Hz,
+    orientation 50 Hz (``qz,qy,qx,qw,roll,pitch,yaw``). iOS: AccelerometerUncalibrated in g
+    with iOS's sign; Android: TotalAcceleration in m/s^2."""
+    import zipfile
+
+    from gnomon.io._common import Q_ENU_NWU
+
+    epoch_ns = 1_700_000_000_000_000_000
+    files = {}
+
+    def table(name, t, cols, values):
+        lines = ["time,seconds_elapsed," + ",".join(cols)]
+        for ti, v in zip(t, values, strict=True):
+            lines.append(f"{epoch_ns + int(round(ti * 1e9))},{ti:.9f}," +
+                         ",".join(f"{x:.9g}" for x in v))
+        files[name] = "\n".join(lines) + "\n"
+
+    t_g, t_a, t_m, t_q = (_times(100, seconds, 0.0), _times(100, seconds, 0.004),
+                          _times(50, seconds, 0.007), _times(50, seconds, 0.001))
+    _, gyro, _, _ = motion(t_g)
+    _, _, accel, _ = motion(t_a)
+    _, _, _, mag = motion(t_m)
+    q, _, _, _ = motion(t_q)
+    table("Gyroscope.csv", t_g, ["z", "y", "x"], gyro[:, ::-1])
+    table("Magnetometer.csv", t_m, ["z", "y", "x"], mag[:, ::-1])
+    if platform == "android":
+        table("TotalAcceleration.csv", t_a, ["z", "y", "x"], accel[:, ::-1])
+        q_file = q
+    else:
+        a = accel if standardised else accel / -G
+        table("AccelerometerUncalibrated.csv", t_a, ["z", "y", "x"], a[:, ::-1])
+        q_file = quat_mul(quat_conj(Q_ENU_NWU), q)  # CoreMotion: relative to x-north z-up
+    table("Accelerometer.csv", t_a, ["z", "y", "x"], np.zeros_like(accel))  # no gravity
+    rpy = np.zeros((t_q.size, 3))
+    table("Orientation.csv", t_q, ["qz", "qy", "qx", "qw", "roll", "pitch", "yaw"],
+          np.column_stack([q_file[:, 3], q_file[:, 2], q_file[:, 1], q_file[:, 0], rpy]))
+    files["Metadata.csv"] = ("version,device name,recording epoch time,recording time,"
+                             "recording timezone,platform,appVersion,device id,sensors,"
+                             "sampleRateMs,standardisation,platform version\n"
+                             f"3,Test Phone,{epoch_ns // 10**6},2023-11-14_22-13-20,UTC,"
+                             f"{platform},1.30.0,abc,Gyroscope|Accelerometer,10,"
+                             f"{'true' if standardised else 'false'},14\n")
+    if zipped:
+        path = dst / "sensorlogger.zip"
+        with zipfile.ZipFile(path, "w") as z:
+            for name, text in files.items():
+                z.writestr(f"2023-11-14_22-13-20/{name}", text)
+        return path
+    path = dst / "sensorlogger"
+    path.mkdir(exist_ok=True)
+    for name, text in files.items():
+        (path / name).write_text(text)
+    return path
+
+
+def write_phyphox(dst: Path, *, zipped=True, seconds=2.0, delimiter=",") -> Path:
+    """A phyphox CSV export from its documented layout: one CSV per sensor, header
+    ``"Time (s)","Acceleration x (m/s^2)",...`` (gyroscope 200 Hz, accelerometer 100 Hz,
+    magnetometer 50 Hz); ``delimiter=";"`` writes phyphox's decimal-comma variant."""
+    import zipfile
+
+    sets = {"Accelerometer.csv": ("Acceleration {} (m/s^2)", _times(100, seconds, 0.002), 2),
+            "Gyroscope.csv": ("Gyroscope {} (rad/s)", _times(200, seconds, 0.0), 1),
+            "Magnetometer.csv": ("Magnetic field {} (µT)", _times(50, seconds, 0.003), 3),
+            "Linear Acceleration.csv": ("Linear Acceleration {} (m/s^2)",
+                                        _times(100, seconds), 2)}
+    files = {}
+    for name, (label, t, k) in sets.items():
+        v = motion(t)[k]
+        if name.startswith("Linear"):
+            v = np.zeros_like(v)
+        head = ['"Time (s)"'] + [f'"{label.format(a)}"' for a in "xyz"]
+        lines = [delimiter.join(head)]
+        for ti, row in zip(t, v, strict=True):
+            cells = [f"{ti:.9E}"] + [f"{x:.9E}" for x in row]
+            if delimiter == ";":
+                cells = [c.replace(".", ",") for c in cells]
+            lines.append(delimiter.join(cells))
+        files[name] = "\n".join(lines) + "\n"
+    files["meta/device.csv"] = '"property","value"\n"deviceModel","Test"\n'
+    if zipped:
+        path = dst / "phyphox.zip"
+        with zipfile.ZipFile(path, "w") as z:
+            for name, text in files.items():
+                z.writestr(name, text)
+        return path
+    path = dst / "phyphox"
+    (path / "meta").mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (path / name).write_text(text)
+    return path
+
+
+def write_xsens(dst: Path, *, seconds=2.0, system="ENU", empty="") -> Path:
+    """An MT Manager text export from its documented layout: ``//`` header lines, a tab-
+    separated table with PacketCounter, SampleTimeFine (10 kHz), Acc/Gyr at 100 Hz,
+    Mag at 25 Hz (other rows empty, or ``empty="NaN"``), Quat_q0..q3 (``q_LS``)."""
+    from gnomon.io._common import Q_ENU_NED, Q_ENU_NWU, Q_FRD_FLU, frd_to_flu
+
+    t = _times(100, seconds)
+    q, gyro, accel, mag = motion(t)
+    if system == "NED":
+        q = quat_mul(quat_mul(quat_conj(Q_ENU_NED), q), quat_conj(Q_FRD_FLU))
+        gyro, accel, mag = frd_to_flu(gyro), frd_to_flu(accel), frd_to_flu(mag)
+    elif system == "NWU":
+        q = quat_mul(quat_conj(Q_ENU_NWU), q)
+    lines = ["// General information:", "//  MT Manager version: 2022.2.0",
+             "// Device information:", "//  DeviceId: 00B42D4F", "//  ProductCode: MTi-630",
+             "// Device settings:", "//  Filter Profile: general", "// Update Rate: 100.0Hz",
+             f"// Coordinate system: {system}",
+             "\t".join(["PacketCounter", "SampleTimeFine", "Acc_X", "Acc_Y", "Acc_Z", "Gyr_X",
+                        "Gyr_Y", "Gyr_Z", "Mag_X", "Mag_Y", "Mag_Z", "Quat_q0", "Quat_q1",
+                        "Quat_q2", "Quat_q3"])]
+    start = 2**32 - 5000  # SampleTimeFine wraps inside the file
+    for k in range(t.size):
+        fine = (start + k * 100) % 2**32
+        m = [f"{x:.6f}" for x in mag[k] / 50.0] if k % 4 == 0 else [empty] * 3
+        cells = [str(k % 65536), str(fine)] + [f"{x:.6f}" for x in accel[k]] + \
+            [f"{x:.6f}" for x in gyro[k]] + m + [f"{x:.8f}" for x in q[k]]
+        lines.append("\t".join(cells))
+    path = dst / "MT_00B42D4F_000.txt"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_multirate_csv(dst: Path, *, seconds=2.0) -> Path:
+    """gnomon's CSV with the gyro at 200 Hz, accelerometer 100 Hz, magnetometer 50 Hz, each
+    row one time stamp; empty cells where a sensor has no sample."""
+    t_g, t_a, t_m = _times(200, seconds), _times(100, seconds, 0.0025), \
+        _times(50, seconds, 0.0013)
+    rows = {}
+    for t, k, key in ((t_g, 1, "g"), (t_a, 2, "a"), (t_m, 3, "m")):
+        for ti, v in zip(t, motion(t)[k], strict=True):
+            rows.setdefault(round(ti, 7), {})[key] = v
+    lines = ["t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,mag_z"]
+    for ti in sorted(rows):
+        r = rows[ti]
+        cells = [f"{ti:.7f}"]
+        for key in "gam":
+            cells += [f"{x:.12g}" for x in r[key]] if key in r else ["", "", ""]
+        lines.append(",".join(cells))
+    path = dst / "multirate.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_mat73(path: Path, variables: dict) -> Path:
+    """A MATLAB v7.3 file as MATLAB writes it: HDF5 with a 512-byte user block starting
+    ``MATLAB 7.3 MAT-file``, each variable stored transposed (MATLAB is column-major)."""
+    import h5py
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for k, v in variables.items():
+            a = np.asarray(v)
+            f[k] = a.T if a.ndim == 2 else a
+            f[k].attrs["MATLAB_class"] = np.bytes_("double" if a.dtype.kind == "f" else
+                                                   "logical")
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 "
+    header += b"HDF5 schema 1.00 ."
+    with open(path, "r+b") as fh:
+        fh.write(header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM")
+    return path
