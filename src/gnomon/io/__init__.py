@@ -153,7 +153,7 @@ def _hdf5_kind(path: Path) -> str:
             if "imu_gyr" in f:
                 return "broad"
             keys = sorted(f.keys())
-    except (OSError, KeyError, ValueError) as err:
+    except (OSError, KeyError, ValueError, RuntimeError) as err:  # RuntimeError: h5py on damage
         raise InputError(f"cannot read as HDF5 ({err})", file=str(path)) from None
     raise InputError(
         "HDF5 file is neither a gnomon recording (root attribute format="

@@ -22,6 +22,7 @@ import contextlib
 import importlib
 import io
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ from gnomon.recording import Recording
 from gnomon.rotation import quat_mul, quat_slerp
 
 __all__ = ["Q_ENU_NED", "Q_FRD_FLU", "Q_ENU_NWU", "frd_to_flu", "ned_frd_to_enu_flu",
-           "optional_import", "series", "onboard_on", "gaps", "build", "quiet",
+           "optional_import", "series", "onboard_on", "gaps", "build", "quiet", "quiet_fd2",
            "GAP_FACTOR", "LOGS_EXTRA"]
 
 _S = math.sqrt(0.5)
@@ -68,6 +69,24 @@ def optional_import(module: str, package: str, path, what: str):
 
 
 @contextlib.contextmanager
+def quiet_fd2():
+    """Send what C extensions write to file descriptor 2 to nowhere (pymavlink's fast
+    indexer reports bad headers there); Python-level output is captured by :func:`quiet`."""
+    try:
+        saved = os.dup(2)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+@contextlib.contextmanager
 def quiet():
     """Capture what a format library prints (pyulog and pymavlink print warnings); the text
     is available as the context value's ``getvalue()`` afterwards."""
@@ -94,7 +113,8 @@ def series(path, field: str, t, values, *, width: int = 3, assumed: list | None 
     bad_t = ~np.isfinite(t)
     if bad_t.any():
         i = int(np.argmax(bad_t))
-        raise InputError(f"non-finite time stamp {t[i]!r}", file=str(path), field=field, row=i)
+        raise InputError(f"non-finite time stamp {float(t[i])!r}", file=str(path), field=field,
+                         row=i)
     bad = ~np.isfinite(v).all(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
@@ -107,7 +127,7 @@ def series(path, field: str, t, values, *, width: int = 3, assumed: list | None 
             equal = same & np.all(v[1:] == v[:-1], axis=1)
             if np.any(same & ~equal):
                 i = int(np.argmax(same & ~equal)) + 1
-                raise InputError(f"time stamp {t[i]!r} repeats with another value",
+                raise InputError(f"time stamp {float(t[i])!r} repeats with another value",
                                  file=str(path), field=field, row=i)
             keep = np.concatenate([[True], ~equal])
             if assumed is not None:
@@ -116,8 +136,8 @@ def series(path, field: str, t, values, *, width: int = 3, assumed: list | None 
             t, v, dt = t[keep], v[keep], np.diff(t[keep])
         if np.any(dt < 0):
             i = int(np.argmax(dt < 0)) + 1
-            raise InputError(f"time stamp goes backward: {t[i]!r} after {t[i - 1]!r}",
-                             file=str(path), field=field, row=i)
+            raise InputError(f"time stamp goes backward: {float(t[i])!r} after "
+                             f"{float(t[i - 1])!r}", file=str(path), field=field, row=i)
     return t, v
 
 
@@ -144,7 +164,8 @@ def onboard_on(path, field: str, t_src, q_src, t_dst, *, max_gap_s: float | None
     if q.ndim != 2 or q.shape[1] != 4 or q.shape[0] != t_src.size:
         raise InputError(f"expected ({t_src.size}, 4) quaternions, got {q.shape}",
                          file=str(path), field=field)
-    norm = np.linalg.norm(q, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(q, axis=1)
     ok = np.isfinite(t_src) & np.isfinite(q).all(axis=1) & (np.abs(norm - 1.0) < 0.1)
     t_src, q = t_src[ok], q[ok] / norm[ok, None]
     out = np.full((t_dst.size, 4), np.nan)
@@ -152,7 +173,8 @@ def onboard_on(path, field: str, t_src, q_src, t_dst, *, max_gap_s: float | None
         return out
     if np.any(np.diff(t_src) < 0):
         i = int(np.argmax(np.diff(t_src) < 0)) + 1
-        raise InputError(f"time stamp goes backward: {t_src[i]!r} after {t_src[i - 1]!r}",
+        raise InputError(f"time stamp goes backward: {float(t_src[i])!r} after "
+                         f"{float(t_src[i - 1])!r}",
                          file=str(path), field=field, row=i)
     dt = np.diff(t_src)
     if max_gap_s is None:

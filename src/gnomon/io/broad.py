@@ -57,7 +57,7 @@ def _load_hdf5(path: Path) -> dict:
                     out[name] = f[name][()]
             if "sampling_rate" not in out and "sampling_rate" in f.attrs:
                 out["sampling_rate"] = f.attrs["sampling_rate"]
-    except (OSError, KeyError, ValueError, TypeError) as err:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as err:
         raise InputError(f"cannot read as HDF5 ({err})", file=str(path)) from None
     return out
 

@@ -45,6 +45,7 @@ from gnomon.io._common import (
     onboard_on,
     optional_import,
     quiet,
+    quiet_fd2,
     series,
 )
 from gnomon.recording import Recording
@@ -58,12 +59,13 @@ _MGAUSS_TO_UT = 0.1
 _CORRUPT = ("bad header", "Skipped", "unknown msg type", "Failed to parse", "bad msg")
 
 
-def _time_field(fmt) -> tuple[str, float]:
+def _time_field(fmt, path="") -> tuple[str, float]:
     if "TimeUS" in fmt.columns:
         return "TimeUS", 1e-6
     if "TimeMS" in fmt.columns:
         return "TimeMS", 1e-3
-    raise InputError(f"message {fmt.name} has no TimeUS/TimeMS field", field=fmt.name)
+    raise InputError(f"message {fmt.name} has no TimeUS/TimeMS field", file=str(path),
+                     field=fmt.name)
 
 
 def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: int = 0,
@@ -90,7 +92,7 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
                              file=str(path), field=name)
     assumed: list[str] = []
     try:
-        with quiet() as printed:
+        with quiet() as printed, quiet_fd2():
             log = dfreader.DFReader_binary(str(path), zero_time_base=False)
             formats = {f.name: f for f in log.formats.values()}
             def pick(kind: str, inst: int) -> tuple[str, int | None]:
@@ -108,7 +110,7 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
             messages: list[str] = []
             for n in wanted:
                 fmt = formats[n]
-                tf, _ = _time_field(fmt)
+                tf, _ = _time_field(fmt, path)
                 if n == imu_name:
                     fields = [tf, "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"]
                 elif n == mag_name:
@@ -141,6 +143,11 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
             left = 0  # bytes of an incomplete last message (the indexer counts it)
             if last is not None and last[0] + log.formats[last[1]].len > log.data_len:
                 left = int(log.data_len - last[0])
+            # bytes in messages the indexer found; fewer than the file holds: it skipped some
+            covered = sum(len(log.offsets[i]) * log.formats[i].len
+                          for i in range(len(log.offsets)) if log.offsets[i] and i in log.formats)
+            skipped = int(log.data_len - covered - (left - log.formats[last[1]].len
+                                                     if left else 0))
             counts = {log.id_to_name[i]: int(c) for i, c in enumerate(log.counts)
                       if c and i in log.id_to_name}
             params = dict(log.params) if hasattr(log, "params") else {}
@@ -150,6 +157,8 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
         raise InputError(f"cannot read as DataFlash (pymavlink: {type(err).__name__}: {err})",
                          file=str(path)) from None
     text = printed.getvalue()
+    if skipped > 0 and not any(k in text for k in _CORRUPT):
+        text += f"\nSkipped {skipped} bad bytes (messages found cover fewer bytes than the file)"
     if any(k in text for k in _CORRUPT):
         line = next(ln for ln in text.splitlines() if any(k in ln for k in _CORRUPT))
         if not allow_corrupt:

@@ -98,7 +98,7 @@ def _load_v73(path: Path) -> dict:
             groups = [v for k, v in f.items() if isinstance(v, h5py.Group) and k != "#refs#"]
             if not _has_any(d) and len(groups) == 1:
                 d = arrays(groups[0])
-    except (OSError, KeyError, ValueError, TypeError) as err:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as err:
         raise InputError(f"cannot read as MATLAB v7.3 (HDF5) ({err})", file=str(path)) from None
     return d
 

@@ -67,7 +67,9 @@ import csv as _csv
 import io
 import os
 import re
+import warnings
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -131,7 +133,8 @@ def _text_table(path: Path, min_cols: int) -> np.ndarray:
     if not path.is_file():
         raise InputError("file missing from the trial folder", file=str(path))
     try:
-        with open(path, encoding="utf-8", errors="strict") as fh:
+        with open(path, encoding="utf-8", errors="strict") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: said below as one line
             a = np.loadtxt(fh, ndmin=2)
     except UnicodeDecodeError as err:
         raise InputError(f"not a text file ({err.reason} at byte {err.start})",
@@ -242,6 +245,11 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
 
 
 # ---------------------------------------------------------------------- CSV bundles
+#: what zipfile raises on a damaged archive (NotImplementedError: a damaged method field)
+_ZIP_ERRORS = (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError,
+               RuntimeError, zlib.error)
+
+
 class _Bundle:
     """The CSV files of a zip or a folder, by base name (``Gyroscope.csv``)."""
 
@@ -257,7 +265,7 @@ class _Bundle:
                 for info in self.zip.infolist():
                     if info.filename.lower().endswith(".csv") and not info.is_dir():
                         self.files.setdefault(Path(info.filename).name, info)
-            except (zipfile.BadZipFile, OSError, ValueError) as err:
+            except _ZIP_ERRORS as err:
                 raise InputError(f"cannot read as zip ({err})", file=str(path)) from None
 
     def where(self, name: str) -> str:
@@ -271,7 +279,7 @@ class _Bundle:
         except UnicodeDecodeError as err:
             raise InputError(f"not a UTF-8 text file ({err.reason} at byte {err.start})",
                              file=self.where(name)) from None
-        except (OSError, zipfile.BadZipFile, ValueError, EOFError) as err:
+        except _ZIP_ERRORS as err:
             raise InputError(f"cannot read ({err})", file=self.where(name)) from None
 
     def header(self, name: str) -> list[str]:

@@ -74,8 +74,38 @@ _INVALID_RELATIVE = 2147483647  # PX4's RELATIVE_TIMESTAMP_INVALID
 _GAUSS_TO_UT = 100.0
 
 
+_KNOWN_TYPES = frozenset(b"FDIMPQARSOLCB")  # pyulog's message types
+
+
+def _check_definitions(path) -> None:
+    """Walk the definitions section as pyulog does and refuse a file on which pyulog would
+    not terminate: an unknown message type (pyulog steps one byte on) whose length runs past
+    the end of the file makes pyulog seek backwards forever (pyulog 1.x). Cheap: the
+    section is the file's first few kilobytes of format and parameter messages."""
+    import struct
+
+    with open(path, "rb") as fh:
+        size = fh.seek(0, 2)
+        fh.seek(0)
+        raw = fh.read(min(size, 4 << 20))
+    pos = 16
+    while pos + 3 <= len(raw):
+        n, kind = struct.unpack_from("<HB", raw, pos)
+        if kind in b"ALC":
+            return  # end of the definitions section
+        if kind not in _KNOWN_TYPES:
+            if pos + 3 + n > size:
+                raise InputError(f"corrupted definitions section: unknown message type {kind} "
+                                 f"at byte {pos} runs past the end of the file",
+                                 file=str(path))
+            pos += 1  # pyulog's recovery: one byte on
+            continue
+        pos += 3 + n
+
+
 def _vec(d: dict, names) -> np.ndarray:
-    return np.column_stack([np.asarray(d[n], dtype=float) for n in names])
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf are refused by series()
+        return np.column_stack([np.asarray(d[n], dtype=float) for n in names])
 
 
 def _stamps(d: dict, assumed: list, topic: str) -> np.ndarray:
@@ -117,6 +147,7 @@ def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: in
         if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 0:
             raise InputError(f"expected an instance number >= 0, got {value!r}",
                              file=str(path), field=name)
+    _check_definitions(path)
     try:
         with quiet() as printed:
             ulog = pyulog.ULog(str(path), list(dict.fromkeys(IMU_TOPICS + MAG_TOPICS + _OTHER)),
@@ -124,6 +155,16 @@ def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: in
     except Exception as err:  # pyulog's failures are not enumerated: the file is unreadable
         raise InputError(f"cannot read as ULog (pyulog: {type(err).__name__}: {err})",
                          file=str(path)) from None
+    try:
+        return _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onboard,
+                        allow_corrupt)
+    except (KeyError, IndexError) as err:  # a field the format definitions should have
+        raise InputError(f"the file's format definitions lack {err} (corrupted?)",
+                         file=str(path)) from None
+
+
+def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onboard,
+             allow_corrupt) -> Recording:
     assumed: list[str] = []
     if ulog.file_corruption:
         if not allow_corrupt:
