@@ -365,6 +365,19 @@ def test_onboard_slerp_is_nan_outside_its_span_and_across_gaps():
         np.outer(t_dst[[1, 2, 4, 5]], [0, 0, 1.0])))).max() < 1e-9
 
 
+def test_fast_slerp_equals_the_readable_one():
+    from gnomon.io._common import _slerp
+    from gnomon.rotation import quat_normalize, quat_slerp
+
+    rng = np.random.default_rng(7)
+    q0 = quat_normalize(rng.normal(size=(2000, 4)))
+    q1 = quat_normalize(rng.normal(size=(2000, 4)))
+    q1[:500] = quat_normalize(q0[:500] + 1e-9 * rng.normal(size=(500, 4)))  # tiny angles
+    q1[500:600] = -q1[500:600]
+    f = rng.uniform(0, 1, 2000)
+    assert np.degrees(error_angle(_slerp(q0, q1, f), quat_slerp(q0, q1, f))).max() < 1e-9
+
+
 def test_missing_library_is_one_line_naming_the_pip_install(monkeypatch):
     for module, path in (("pyulog", PX4_SMALL), ("pymavlink", AP_BIN), ("rosbags", None)):
         for name in list(sys.modules):

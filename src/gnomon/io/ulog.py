@@ -55,7 +55,6 @@ from gnomon.errors import InputError
 from gnomon.io._common import (
     as_path,
     build,
-    frd_to_flu,
     ned_frd_to_enu_flu,
     onboard_on,
     optional_import,
@@ -72,6 +71,7 @@ MAG_TOPICS = ("vehicle_magnetometer", "sensor_combined", "sensor_mag")
 _OTHER = ("sensor_accel", "vehicle_attitude", "vehicle_attitude_groundtruth")
 _INVALID_RELATIVE = 2147483647  # PX4's RELATIVE_TIMESTAMP_INVALID
 _GAUSS_TO_UT = 100.0
+_MAG = (_GAUSS_TO_UT, -_GAUSS_TO_UT, -_GAUSS_TO_UT)  # FRD gauss -> FLU µT
 
 
 _KNOWN_TYPES = frozenset(b"FDIMPQARSOLCB")  # pyulog's message types
@@ -103,9 +103,25 @@ def _check_definitions(path) -> None:
         pos += 3 + n
 
 
-def _vec(d: dict, names) -> np.ndarray:
+_FLU = (1.0, -1.0, -1.0)  # FRD -> FLU, applied while the columns are copied
+
+
+def _vec(d: dict, names, scale=None) -> np.ndarray:
+    """Fields ``names`` of a topic as one (N, k) float array, each column times ``scale``
+    (one pass, no temporaries: long logs)."""
+    out = np.empty((d[names[0]].size, len(names)))
     with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf are refused by series()
-        return np.column_stack([np.asarray(d[n], dtype=float) for n in names])
+        for j, n in enumerate(names):
+            np.multiply(d[n], 1.0 if scale is None else scale[j], out=out[:, j],
+                        casting="unsafe")
+    return out
+
+
+def _valid(rel: np.ndarray):
+    """Rows whose relative time stamp is valid: a boolean mask, or ``slice(None)`` when all
+    are (no copies on long logs)."""
+    bad = rel == _INVALID_RELATIVE
+    return slice(None) if not bad.any() else ~bad
 
 
 def _stamps(d: dict, assumed: list, topic: str) -> np.ndarray:
@@ -205,13 +221,13 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
         d = get(topic, 0, "IMU")
         t_us = d["timestamp"].astype(np.int64)
         t_g, gyro = series(path, "sensor_combined.gyro_rad", t_us * 1e-6,
-                           _vec(d, [f"gyro_rad[{k}]" for k in range(3)]), assumed=assumed)
+                           _vec(d, [f"gyro_rad[{k}]" for k in range(3)], _FLU), assumed=assumed)
         rel = d.get("accelerometer_timestamp_relative")
         rel = np.zeros(t_us.size, np.int64) if rel is None else rel.astype(np.int64)
-        ok = rel != _INVALID_RELATIVE
+        ok = _valid(rel)
         t_a, accel = series(path, "sensor_combined.accelerometer_m_s2",
                             (t_us[ok] + rel[ok]) * 1e-6,
-                            _vec(d, [f"accelerometer_m_s2[{k}]" for k in range(3)])[ok],
+                            _vec(d, [f"accelerometer_m_s2[{k}]" for k in range(3)], _FLU)[ok],
                             assumed=assumed)
         names.update(gyro="sensor_combined.gyro_rad", accel="sensor_combined.accelerometer_m_s2")
         imu_desc = "sensor_combined (gyro at timestamp, accelerometer at timestamp + " \
@@ -226,11 +242,11 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
             raise InputError("integration interval is not positive", file=str(path),
                              field="vehicle_imu.delta_angle_dt", row=int(bad))
         t_g, gyro = series(path, "vehicle_imu.delta_angle", t,
-                           _vec(d, [f"delta_angle[{k}]" for k in range(3)]) / dt_a[:, None],
+                           _vec(d, [f"delta_angle[{k}]" for k in range(3)], _FLU) / dt_a[:, None],
                            assumed=assumed)
         t_a, accel = series(path, "vehicle_imu.delta_velocity", t,
-                            _vec(d, [f"delta_velocity[{k}]" for k in range(3)]) / dt_v[:, None],
-                            assumed=assumed)
+                            _vec(d, [f"delta_velocity[{k}]" for k in range(3)], _FLU)
+                            / dt_v[:, None], assumed=assumed)
         names.update(gyro="vehicle_imu.delta_angle", accel="vehicle_imu.delta_velocity")
         imu_desc = f"vehicle_imu[{instance}] (delta_angle / delta_angle_dt, delta_velocity / " \
                    "delta_velocity_dt: the mean rate and specific force over each interval)"
@@ -238,9 +254,9 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
         dg, da = get("sensor_gyro", instance, "gyro"), get("sensor_accel", instance,
                                                           "accelerometer")
         t_g, gyro = series(path, "sensor_gyro", _stamps(dg, assumed, "sensor_gyro"),
-                           _vec(dg, "xyz"), assumed=assumed)
+                           _vec(dg, "xyz", _FLU), assumed=assumed)
         t_a, accel = series(path, "sensor_accel", _stamps(da, assumed, "sensor_accel"),
-                            _vec(da, "xyz"), assumed=assumed)
+                            _vec(da, "xyz", _FLU), assumed=assumed)
         names.update(gyro="sensor_gyro", accel="sensor_accel")
         imu_desc = f"sensor_gyro[{instance}] and sensor_accel[{instance}]"
     if t_g.size < 2:
@@ -266,7 +282,8 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
         d = get(mag_topic, mag_instance, "magnetometer")
         t_m, mag = series(path, "vehicle_magnetometer.magnetometer_ga",
                           _stamps(d, assumed, mag_topic),
-                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)]), assumed=assumed)
+                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG),
+                          assumed=assumed)
         mag_desc = f"vehicle_magnetometer[{mag_instance}] (calibrated by PX4)"
     elif mag_topic == "sensor_combined":
         if mag_instance != 0:
@@ -278,41 +295,45 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
                              "vehicle_magnetometer or sensor_mag", file=str(path),
                              field="mag_topic")
         rel = d["magnetometer_timestamp_relative"].astype(np.int64)
-        ok = rel != _INVALID_RELATIVE
+        ok = _valid(rel)
         t_m, mag = series(path, "sensor_combined.magnetometer_ga",
                           (d["timestamp"].astype(np.int64)[ok] + rel[ok]) * 1e-6,
-                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)])[ok],
+                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG)[ok],
                           assumed=assumed)
         mag_desc = "sensor_combined.magnetometer_ga (older firmware) at timestamp + " \
                    "magnetometer_timestamp_relative"
     elif mag_topic == "sensor_mag":
         d = get(mag_topic, mag_instance, "magnetometer")
-        t_m, mag = series(path, "sensor_mag", _stamps(d, assumed, mag_topic), _vec(d, "xyz"),
+        t_m, mag = series(path, "sensor_mag", _stamps(d, assumed, mag_topic), _vec(d, "xyz", _MAG),
                           assumed=assumed)
         mag_desc = f"sensor_mag[{mag_instance}] (raw, not calibrated)"
-    if mag is not None:
-        if mag.shape[0] == 0:
-            mag = t_m = None
-            mag_desc = f"{mag_topic}: no valid sample"
-        else:
-            mag = frd_to_flu(mag) * _GAUSS_TO_UT
+    if mag is not None and mag.shape[0] == 0:  # (already FLU and µT: _MAG)
+        mag = t_m = None
+        mag_desc = f"{mag_topic}: no valid sample"
     names.update(mag=str(mag_topic), mag_t=str(mag_topic))
 
     # ---------------------------------------------------------------- estimates
     q_onboard = q_true = None
     onboard_desc = None
-    if onboard and ("vehicle_attitude", 0) in data:
-        d = data[("vehicle_attitude", 0)]
-        t_q = _stamps(d, assumed, "vehicle_attitude")
-        q = ned_frd_to_enu_flu(_vec(d, [f"q[{k}]" for k in range(4)]))
-        q_onboard = onboard_on(path, "vehicle_attitude", t_q, q, t_g)
+    estimates = {}
+    for name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
+        if (name, 0) in data and (onboard or name != "vehicle_attitude"):
+            d = data[(name, 0)]
+            estimates[name] = (_stamps(d, assumed, name),
+                               _vec(d, [f"q[{k}]" for k in range(4)]))
+    dropouts = len(ulog.dropouts)
+    for d in ulog.data_list:  # pyulog's arrays are copied out: free them before resampling
+        d.data = {}
+    data.clear()
+    if "vehicle_attitude" in estimates:
+        t_q, q = estimates["vehicle_attitude"]
+        q_onboard = onboard_on(path, "vehicle_attitude", t_q, ned_frd_to_enu_flu(q), t_g)
         onboard_desc = "vehicle_attitude (PX4's estimator, EKF2 on current firmware), " \
                        "slerped onto the gyro time stamps"
-    if ("vehicle_attitude_groundtruth", 0) in data:
-        d = data[("vehicle_attitude_groundtruth", 0)]
-        t_q = _stamps(d, assumed, "vehicle_attitude_groundtruth")
-        q_true = onboard_on(path, "vehicle_attitude_groundtruth", t_q,
-                            ned_frd_to_enu_flu(_vec(d, [f"q[{k}]" for k in range(4)])), t_g)
+    if "vehicle_attitude_groundtruth" in estimates:
+        t_q, q = estimates["vehicle_attitude_groundtruth"]
+        q_true = onboard_on(path, "vehicle_attitude_groundtruth", t_q, ned_frd_to_enu_flu(q),
+                            t_g)
         assumed.append("vehicle_attitude_groundtruth (the simulator's truth) is q_true, "
                        "slerped onto the gyro time stamps.")
 
@@ -330,9 +351,9 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
                    if k in info},
         "imu": imu_desc, "topic": topic, "instance": int(instance), "mag": mag_desc,
         "mag_topic": mag_topic, "mag_instance": int(mag_instance), "onboard": onboard_desc,
-        "available": available, "dropouts": len(ulog.dropouts),
+        "available": available, "dropouts": dropouts,
     }
-    return build(path, names, t=t_g, gyro=frd_to_flu(gyro), accel=frd_to_flu(accel),
+    return build(path, names, t=t_g, gyro=gyro, accel=accel,
                  accel_t=t_a, mag=mag, mag_t=t_m, mag_unit="uT", q_onboard=q_onboard,
                  q_true=q_true, frames={"reference": "ENU", "body": "FLU"},
                  source=f"{path.stem} (PX4 ULog)", meta=meta)
