@@ -277,12 +277,13 @@ def read(path: str | os.PathLike, format: str = "auto", **options) -> Recording:
 
 
 def inspect(path: str | os.PathLike, format: str = "auto", **options) -> dict:
-    """What a log holds (:func:`gnomon.io.summary.inspect`): sensors with ``rate_hz``,
+    """What a log holds (:func:`gnomon.io.summary.summarise`): sensors with ``rate_hz``,
     ``samples``, ``unit``, gaps, duration, the device's own estimate, what else the file
     offers (topics, instances) and what the reader assumed. JSON-able."""
-    from gnomon.io.summary import inspect as f
+    from gnomon.io.summary import summarise
 
-    return f(path, format=format, **options)
+    fmt = detect_format(path) if format == "auto" else format
+    return summarise(read(path, format=fmt, **options), str(Path(path)), fmt)
 
 
 def write(path: str | os.PathLike, rec: Recording) -> Path:

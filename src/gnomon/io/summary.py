@@ -1,4 +1,5 @@
-"""``gnomon inspect``: what a log holds, from the Recording its reader makes.
+"""``gnomon inspect``: what a log holds, from the Recording its reader makes
+(:func:`gnomon.io.inspect` reads, :func:`summarise` describes).
 
 For each sensor (gyro, accelerometer, magnetometer): ``rate_hz`` (median), ``samples``,
 ``unit``, first and last time stamp (s), gaps (intervals longer than ``GAP_FACTOR`` = 5
@@ -11,14 +12,11 @@ reader's ``assumed`` sentences. The result is JSON-able.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 
 from gnomon.io._common import GAP_FACTOR, gaps
 
-__all__ = ["inspect", "summarise"]
+__all__ = ["summarise"]
 
 _UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
 _ORIGIN = {"gyro": ("topic", "imu"), "accel": ("topic", "imu"), "mag": ("mag_topic", "mag")}
@@ -60,13 +58,3 @@ def summarise(rec, path: str = "", fmt: str = "") -> dict:
         "device": meta.get("device"), "available": meta.get("available"),
         "assumed": list(meta.get("assumed", [])), "gap_factor": GAP_FACTOR,
     }
-
-
-def inspect(path: str | os.PathLike, format: str = "auto", **options) -> dict:
-    """Read ``path`` with :func:`gnomon.io.read` (same ``format`` and options) and summarise
-    what it holds (module docstring)."""
-    from gnomon.io import detect_format, read
-
-    fmt = detect_format(path) if format == "auto" else format
-    rec = read(path, format=fmt, **options)
-    return summarise(rec, str(Path(path)), fmt)
