@@ -283,3 +283,47 @@ def write_mat73(path: Path, variables: dict) -> Path:
     with open(path, "r+b") as fh:
         fh.write(header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02IM")
     return path
+
+
+def write_dataflash(dst: Path, *, seconds=2.0) -> Path:
+    """An ArduPilot DataFlash log as current firmware writes it (instances in a field ``I``),
+    from the documented binary layout: ``0xA3 0x95 <type>`` then the packed fields; ``FMT``
+    (type 128) describes every message. IMU I=0 (the motion) and I=1 (the motion with a
+    0.01 rad/s gyro offset) at 100 Hz, MAG I=0 at 25 Hz in milligauss, ATT at 25 Hz in
+    centidegrees — all in ArduPilot's FRD body and NED frames."""
+    import struct
+
+    from gnomon.io._common import Q_ENU_NED, Q_FRD_FLU, frd_to_flu
+    from gnomon.rotation import euler_from_quat
+
+    formats = {128: ("FMT", "BBnNZ", "Type,Length,Name,Format,Columns"),
+               129: ("IMU", "QBffffff", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+               130: ("MAG", "QBhhh", "TimeUS,I,MagX,MagY,MagZ"),
+               131: ("ATT", "QccC", "TimeUS,Roll,Pitch,Yaw")}
+    codes = {"Q": "Q", "B": "B", "f": "f", "h": "h", "c": "h", "C": "H", "n": "4s", "N": "16s",
+             "Z": "64s"}
+    packers = {k: struct.Struct("<" + "".join(codes[c] for c in f)) for k, (_, f, _) in
+               formats.items()}
+    out = bytearray()
+
+    def msg(kind, *values):
+        out.extend(b"\xa3\x95" + bytes([kind]) + packers[kind].pack(*values))
+
+    for kind, (name, fmt, cols) in formats.items():
+        msg(128, kind, 3 + packers[kind].size, name.encode(), fmt.encode(), cols.encode())
+    t = _times(100, seconds)
+    q, gyro, accel, mag = motion(t)
+    g_frd, a_frd, m_frd = frd_to_flu(gyro), frd_to_flu(accel), frd_to_flu(mag)
+    q_ned_frd = quat_mul(quat_mul(quat_conj(Q_ENU_NED), q), quat_conj(Q_FRD_FLU))
+    rpy = np.degrees(euler_from_quat(q_ned_frd))
+    for k, tk in enumerate(t):
+        us = 5_000_000 + int(round(tk * 1e6))
+        msg(129, us, 0, *g_frd[k], *a_frd[k])
+        msg(129, us + 50, 1, *(g_frd[k] + 0.01), *a_frd[k])
+        if k % 4 == 0:
+            msg(130, us + 300, 0, *[int(round(x * 10)) for x in m_frd[k]])  # µT -> mGauss
+            msg(131, us + 600, *[int(round(x * 100)) for x in (rpy[k, 0], rpy[k, 1],
+                                                                 rpy[k, 2] % 360.0)])
+    path = dst / "current.BIN"
+    path.write_bytes(bytes(out))
+    return path

@@ -160,6 +160,7 @@ def log_files(tmp_path_factory):
         "mcap": next(bags["mcap"].glob("*.mcap")),
         "db3": next(bags["sqlite3"].glob("*.db3")),
         "xsens": L.write_xsens(d, seconds=0.5),
+        "dataflash_current": L.write_dataflash(d, seconds=0.5),
         "csv_multirate": L.write_multirate_csv(d, seconds=0.5),
     }
     (d / "sl").mkdir()
@@ -172,8 +173,8 @@ def log_files(tmp_path_factory):
     return files
 
 
-LOG_KINDS = ["ulog", "dataflash", "ros1", "mcap", "db3", "xsens", "csv_multirate",
-             "sensorlogger", "phyphox", "mat73"]
+LOG_KINDS = ["ulog", "dataflash", "dataflash_current", "ros1", "mcap", "db3", "xsens",
+             "csv_multirate", "sensorlogger", "phyphox", "mat73"]
 
 
 @settings(max_examples=25, deadline=None,

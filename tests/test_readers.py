@@ -177,6 +177,23 @@ def test_dataflash_instances():
         read(AP_BIN, onboard="EKF")
 
 
+def test_dataflash_current_firmware_layout(tmp_path):
+    """Instances in field I, ATT yaw as uint16 centidegrees (a log from the documented
+    layout, made from the known motion in FRD/NED): the reader undoes both conversions."""
+    path = L.write_dataflash(tmp_path)
+    rec = read(path)
+    assert rec.meta["imu"] == "IMU I=0" and rec.meta["mag"] == "MAG I=0"
+    q, gyro, accel, _ = L.motion(rec.t - 5.0)
+    assert np.abs(rec.gyro - gyro).max() < 1e-6 and np.abs(rec.accel - accel).max() < 1e-5
+    assert np.abs(rec.mag - L.motion(rec.mag_t - 5.0003)[3]).max() < 0.06  # 1 mGauss steps
+    ok = np.isfinite(rec.q_onboard).all(axis=1)
+    q_att = L.motion(rec.t[ok] - 5.0006)[0]
+    assert np.degrees(error_angle(q_att, rec.q_onboard[ok])).max() < 0.02  # centidegrees
+    second = read(path, instance=1)
+    assert second.meta["imu"] == "IMU I=1"
+    assert np.abs(second.gyro - (gyro + [0.01, -0.01, -0.01])).max() < 1e-6  # FRD offset
+
+
 # ------------------------------------------------------------------ ROS bags
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory):
