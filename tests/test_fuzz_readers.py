@@ -131,3 +131,243 @@ def test_yaml_is_loaded_safely(tmp_path):
         load_scenario(path)
     assert not marker.exists()
     _io.StringIO()  # keep the import used
+
+
+# ------------------------------------------------------------------ log readers
+LOGS = DATA / "logs"
+TYREX_ANDROID = LOGS / "tyrex" / "android" / "Guillaume_Nexus5_NoDist_Texting_excerpt"
+TYREX_IOS = LOGS / "tyrex" / "ios" / "Guillaume_iPhone5_NoDist_Texting_excerpt"
+
+
+def one_line_naming(err: InputError, path, field: str | None = None) -> None:
+    text = str(err)
+    assert "\n" not in text and str(path) in text, text
+    if field is not None:
+        assert f"field '{field}" in text, text
+
+
+@pytest.fixture(scope="module")
+def log_files(tmp_path_factory):
+    """One file of every single-file format: real excerpts and generated files."""
+    import logfiles as L
+
+    d = tmp_path_factory.mktemp("logs")
+    bags = L.write_rosbags(d, seconds=0.5)
+    files = {
+        "ulog": LOGS / "px4" / "sample_log_small_imu.ulg",
+        "dataflash": LOGS / "ardupilot" / "test.BIN",
+        "ros1": bags["ros1"],
+        "mcap": next(bags["mcap"].glob("*.mcap")),
+        "db3": next(bags["sqlite3"].glob("*.db3")),
+        "xsens": L.write_xsens(d, seconds=0.5),
+        "dataflash_current": L.write_dataflash(d, seconds=0.5),
+        "csv_multirate": L.write_multirate_csv(d, seconds=0.5),
+    }
+    (d / "sl").mkdir()
+    files["sensorlogger"] = L.write_sensorlogger(d / "sl", seconds=0.5)
+    (d / "ph").mkdir()
+    files["phyphox"] = L.write_phyphox(d / "ph", seconds=0.5)
+    t = np.arange(100) / 100.0
+    files["mat73"] = L.write_mat73(d / "m73.mat", {"t": t, "gyr": np.zeros((100, 3)),
+                                                    "acc": np.tile([0, 0, 9.8], (100, 1))})
+    return files
+
+
+LOG_KINDS = ["ulog", "dataflash", "dataflash_current", "ros1", "mcap", "db3", "xsens",
+             "csv_multirate", "sensorlogger", "phyphox", "mat73"]
+
+
+@settings(max_examples=25, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)),
+                                               max_size=12))
+@pytest.mark.parametrize("kind", LOG_KINDS)
+def test_truncated_and_corrupted_logs(tmp_path, log_files, kind, cut, flips):
+    src = log_files[kind]
+    data = bytearray(src.read_bytes())
+    for where, value in flips:
+        data[int(where * (len(data) - 1))] = value
+    data = data[: max(1, int(cut * len(data)))] if cut < 1.0 else data
+    path = tmp_path / src.name
+    path.write_bytes(bytes(data))
+    try:
+        rec = read(path)
+    except InputError as e:
+        one_line_naming(e, path.name)
+        return
+    assert isinstance(rec, Recording)
+
+
+@pytest.mark.parametrize("kind", LOG_KINDS)
+def test_logs_with_the_wrong_format_forced(tmp_path, log_files, kind):
+    """A file read as every other format: one line, never another exception."""
+    from gnomon.io import FORMATS
+
+    for fmt in FORMATS[1:]:
+        try:
+            read(log_files[kind], format=fmt)
+        except InputError as e:
+            one_line_naming(e, log_files[kind].name)
+
+
+def _ulog_variant(tmp_path, change) -> Path:
+    from pyulog import ULog
+
+    u = ULog(str(LOGS / "px4" / "sample_log_small_imu.ulg"))
+    change({(d.name, d.multi_id): d for d in u.data_list})
+    path = tmp_path / "changed.ulg"
+    u.write_ulog(str(path))
+    return path
+
+
+def _ulog_patch_timestamp(src: Path, dst: Path, topic: str, index: int, value_us: int) -> Path:
+    """Overwrite the timestamp of the ``index``-th data message of ``topic`` in the bytes
+    (pyulog's writer sorts messages by time, so a backward stamp must be made by hand)."""
+    import struct
+
+    raw = bytearray(src.read_bytes())
+    pos, msg_id, seen = 16, None, 0  # ULog: 16-byte file header, then size/type/payload
+    while pos + 3 <= len(raw):
+        size, kind = struct.unpack_from("<HB", raw, pos)
+        body = pos + 3
+        if kind == ord("A") and raw[body + 3:body + size].decode() == topic:
+            msg_id = struct.unpack_from("<H", raw, body + 1)[0]
+        elif kind == ord("D") and struct.unpack_from("<H", raw, body)[0] == msg_id:
+            if seen == index:
+                struct.pack_into("<Q", raw, body + 2, value_us)
+                break
+            seen += 1
+        pos = body + size
+    dst.write_bytes(bytes(raw))
+    return dst
+
+
+def test_ulog_backward_repeated_nan_and_empty(tmp_path):
+    def backward(data):
+        pass  # made in the bytes below
+
+    def repeated(data):
+        ts = data[("sensor_combined", 0)].data["timestamp"]
+        ts[11] = ts[10]
+
+    def nan(data):
+        data[("sensor_combined", 0)].data["gyro_rad[1]"][7] = np.nan
+
+    def empty(data):
+        d = data[("sensor_combined", 0)]
+        d.data = {k: v[:1] for k, v in d.data.items()}
+
+    for change, field, what in ((backward, "sensor_combined.gyro_rad", "backward"),
+                                (repeated, "sensor_combined.gyro_rad", "repeats"),
+                                (nan, "sensor_combined.gyro_rad", "non-finite"),
+                                (empty, "sensor_combined.gyro_rad", "at least 2")):
+        path = _ulog_variant(tmp_path, change)
+        if change is backward:
+            path = _ulog_patch_timestamp(path, tmp_path / "back.ulg", "sensor_combined", 10,
+                                         1000)
+        with pytest.raises(InputError, match=what) as e:
+            read(path)
+        one_line_naming(e.value, path, field)
+
+
+def test_dataflash_backward_and_nan(tmp_path):
+    import struct
+
+    from pymavlink import DFReader
+
+    src = LOGS / "ardupilot" / "test.BIN"
+    log = DFReader.DFReader_binary(str(src))
+    imu = log.name_to_id["IMU"]
+    offsets = log.offsets[imu]
+    raw = bytearray(src.read_bytes())
+    back = bytearray(raw)
+    struct.pack_into("<Q", back, offsets[5] + 3, 1)  # TimeUS of the 6th IMU message: 1 us
+    nan = bytearray(raw)
+    struct.pack_into("<f", nan, offsets[3] + 3 + 8, float("nan"))  # its GyrX
+    for data, what, field in ((back, "backward", "IMU.GyrX..AccZ"),
+                              (nan, "non-finite", "IMU.GyrX..AccZ")):
+        path = tmp_path / "t.BIN"
+        path.write_bytes(bytes(data))
+        with pytest.raises(InputError, match=what) as e:
+            read(path)
+        one_line_naming(e.value, path, field)
+
+
+def test_rosbag_backward_nan_and_empty_topic(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    Imu, Mag = T["sensor_msgs/msg/Imu"], T["sensor_msgs/msg/MagneticField"]
+
+    def msg(t, w=0.0):
+        h = T["std_msgs/msg/Header"](seq=0, stamp=T["builtin_interfaces/msg/Time"](
+            sec=int(t), nanosec=int((t % 1) * 1e9)), frame_id="imu")
+        v = T["geometry_msgs/msg/Vector3"]
+        return Imu(header=h, orientation=T["geometry_msgs/msg/Quaternion"](x=0, y=0, z=0, w=1),
+                   orientation_covariance=np.zeros(9), angular_velocity=v(x=w, y=0, z=0),
+                   angular_velocity_covariance=np.zeros(9),
+                   linear_acceleration=v(x=0, y=0, z=9.8),
+                   linear_acceleration_covariance=np.zeros(9))
+
+    def bag(name, stamps, values, with_empty_mag=False):
+        path = tmp_path / name
+        with Writer(path) as w:
+            c = w.add_connection("/imu", Imu.__msgtype__, typestore=store)
+            if with_empty_mag:
+                w.add_connection("/mag", Mag.__msgtype__, typestore=store)
+            for i, (t, v) in enumerate(zip(stamps, values, strict=True)):
+                w.write(c, 10**9 + i, store.serialize_ros1(msg(t, v), Imu.__msgtype__))
+        return path
+
+    t = 1.0 + np.arange(10) * 0.01
+    back = t.copy()
+    back[6] = back[2]
+    nan = np.zeros(10)
+    nan[4] = np.nan
+    cases = ((bag("back.bag", back, np.zeros(10)), "backward", "/imu"),
+             (bag("nan.bag", t, nan), "non-finite", "/imu"),
+             (bag("empty.bag", t[:1], [0.0]), "at least 2", "/imu"))
+    for path, what, field in cases:
+        with pytest.raises(InputError, match=what) as e:
+            read(path)
+        one_line_naming(e.value, path, field)
+    path = bag("emptymag.bag", t, np.zeros(10), with_empty_mag=True)
+    assert read(path).mag is None  # a topic without messages: no magnetometer, said nowhere
+    with pytest.raises(InputError, match="zero") as e:  # unset header stamps
+        read(bag("zero.bag", np.zeros(10), np.zeros(10)))
+
+
+@pytest.mark.parametrize("trial", [TYREX_ANDROID, TYREX_IOS], ids=["android", "ios"])
+def test_tyrex_mutated_files(tmp_path, trial):
+    cases = {
+        "bad number": lambda lines: lines.__setitem__(5, lines[5].replace(" ", " x", 1)),
+        "backward": lambda lines: lines.__setitem__(9, lines[2]),
+        "nan": lambda lines: lines.__setitem__(4, " ".join(lines[4].split()[:1] + ["nan"] * 3)),
+        "ragged": lambda lines: lines.__setitem__(3, lines[3].split()[0]),
+        "empty": lambda lines: lines.clear(),
+    }
+    for name, change in cases.items():
+        d = tmp_path / f"{trial.name}_{name.replace(' ', '_')}"
+        shutil.copytree(trial, d)
+        f = d / "accelerometer.txt"
+        lines = f.read_text().splitlines()
+        change(lines)
+        f.write_text("\n".join(lines) + ("\n" if lines else ""))
+        with pytest.raises(InputError) as e:
+            read(d)
+        one_line_naming(e.value, d)
+
+
+def test_xsens_and_phyphox_partial_rows(tmp_path, log_files):
+    text = log_files["xsens"].read_text().splitlines()
+    i = next(k for k, ln in enumerate(text) if ln.startswith("0\t") or ln.split("\t")[0] == "0")
+    cells = text[i].split("\t")
+    cells[9] = ""  # Mag_Y empty, Mag_X and Mag_Z filled
+    text[i] = "\t".join(cells)
+    path = tmp_path / "x.txt"
+    path.write_text("\n".join(text))
+    with pytest.raises(InputError, match="empty cell") as e:
+        read(path)
+    one_line_naming(e.value, path, "Mag_Y")

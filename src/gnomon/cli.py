@@ -83,9 +83,59 @@ def _read_input(args):
     if args.columns:
         csv_opts["columns"] = _params(args.columns.split(","), option="--columns")
     for opt in ("gyro_unit", "accel_unit", "mag_unit", "time_unit"):
-        if getattr(args, opt):
+        if getattr(args, opt, None):
             csv_opts[opt] = getattr(args, opt)
-    return read(args.input, format=args.format, **csv_opts)
+    return read(args.input, format=args.format, **csv_opts, **_log_options(args))
+
+
+def _log_options(args) -> dict:
+    """``--topic``/``--instance`` (and ``--mag-topic``) as reader options, when given."""
+    out = {}
+    for opt in ("topic", "mag_topic", "instance"):
+        if getattr(args, opt, None) is not None:
+            out[opt] = getattr(args, opt)
+    return out
+
+
+def cmd_inspect(args) -> int:
+    """``gnomon.io.inspect(path, format, topic=, instance=)``: what a log holds."""
+    from gnomon.io import inspect
+
+    info = inspect(args.input, format=args.format, **_log_options(args))
+    if args.json:
+        print_json(info)
+        return 0
+    print(f"{info['file']}: {info['format']}, {info['source']}; {info['duration_s']:.2f} s; "
+          f"frames {info['frames']['reference']}/{info['frames']['body']}")
+    for s in info["sensors"]:
+        gaps = f", {s['gaps']} gaps (longest {s['longest_gap_s']:.3f} s)" if s["gaps"] else ""
+        origin = f"  [{s['from']}]" if s["from"] else ""
+        print(f"  {s['name']:5s} {s['rate_hz']:9.2f} Hz {s['samples']:9d} samples  "
+              f"{s['unit']}{gaps}{origin}")
+    for key, label in (("onboard", "own estimate"), ("truth", "truth")):
+        if info[key]:
+            o = info[key]
+            print(f"  {label}: {o['what']} ({o['coverage']:.0%} of gyro samples)")
+    if info.get("available"):
+        print(f"  available: {json.dumps(info['available'], default=str)}")
+    for line in info["assumed"]:
+        print(f"  assumed: {line}")
+    return 0
+
+
+def cmd_convert(args) -> int:
+    """``gnomon.io.write(out, gnomon.io.read(path, format, topic=, instance=))``."""
+    from gnomon.io import read, write
+
+    rec = read(args.input, format=args.format, **_log_options(args))
+    write(args.out, rec)
+    summary = {"input": str(args.input), "out": str(args.out), "samples": len(rec),
+               "format_version": 2}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"wrote {args.out}: {len(rec)} gyro samples from {args.input}")
+    return 0
 
 
 def cmd_estimate(args) -> int:
@@ -281,6 +331,14 @@ def cmd_bench(args) -> int:
 
 
 # ------------------------------------------------------------------ parser
+def _add_log_options(s) -> None:
+    g = s.add_argument_group("log options (ULog, DataFlash, ROS bags)")
+    g.add_argument("--topic", help="IMU topic (ROS: /imu/data; ULog: sensor_combined, "
+                                   "vehicle_imu, sensor_gyro)")
+    g.add_argument("--mag-topic", help="magnetometer topic, or none")
+    g.add_argument("--instance", type=int, help="IMU instance (ULog, DataFlash; default 0)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gnomon",
@@ -298,7 +356,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--filter", default="robust-ahrs",
                    help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
-    s.add_argument("--format", default="auto", choices=["auto", "broad", "csv", "hdf5"])
+    from gnomon.io import FORMATS
+
+    s.add_argument("--format", default="auto", choices=list(FORMATS))
+    _add_log_options(s)
     s.add_argument("--out", help="write the estimate (.csv or .h5)")
     s.add_argument("--plot", help="write a figure (attitude, errors, bias, flags), e.g. out.png")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -309,6 +370,22 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
     g.add_argument("--time-unit", help="s (default), ms, us or ns")
     s.set_defaults(func=cmd_estimate)
+
+    s = sub.add_parser("inspect", help="what a log holds: sensors, rates, gaps, units, the "
+                                       "device's own estimate, topics/instances")
+    s.add_argument("input", help="log file or folder (ULog, DataFlash, ROS bag, phone, ...)")
+    s.add_argument("--format", default="auto", choices=list(FORMATS))
+    _add_log_options(s)
+    s.add_argument("--json", action="store_true", help="machine-readable output")
+    s.set_defaults(func=cmd_inspect)
+
+    s = sub.add_parser("convert", help="read a log and write it as a gnomon HDF5 recording")
+    s.add_argument("input", help="log file or folder")
+    s.add_argument("out", help="recording file to write (.h5)")
+    s.add_argument("--format", default="auto", choices=list(FORMATS))
+    _add_log_options(s)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_convert)
 
     s = sub.add_parser("benchmark", help="score filters on a benchmark data set")
     s.add_argument("dataset", choices=["broad"], help="benchmark data set")

@@ -4,6 +4,10 @@
   repository (``../shared/data/broad`` from the repository root, or one level
   further up for a git worktree), else none.
 * Images for seed 003: ``$GNOMON_IMAGES_DIR``, else ``shared/data/images`` found the same way.
+* Flight-controller sample logs (PX4 ``.ulg``, ArduPilot ``.BIN``): ``$GNOMON_LOGS_DIR``,
+  else ``shared/data/logs`` found the same way.
+* The tyrex smartphone data set (Michel et al. 2018): ``$GNOMON_TYREX_DIR``, else
+  ``shared/data/tyrex`` found the same way.
 
 The unit tests never need them: small excerpts ship in ``tests/data``; tests
 that use the full sets skip with a message naming the setting.
@@ -14,7 +18,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["broad_dir", "images_dir", "repo_root"]
+__all__ = ["broad_dir", "images_dir", "logs_dir", "tyrex_dir", "repo_root"]
 
 
 def repo_root() -> Path:
@@ -43,3 +47,13 @@ def broad_dir() -> Path | None:
 def images_dir() -> Path | None:
     """Directory of the full-size images for seed 003, or None."""
     return _find("GNOMON_IMAGES_DIR", "images")
+
+
+def logs_dir() -> Path | None:
+    """Directory of the sample flight logs (``px4/``, ``ardupilot/``), or None."""
+    return _find("GNOMON_LOGS_DIR", "logs")
+
+
+def tyrex_dir() -> Path | None:
+    """Directory of the tyrex smartphone data set (``datasets/``, ``LICENCE``), or None."""
+    return _find("GNOMON_TYREX_DIR", "tyrex")

@@ -37,7 +37,8 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.recording import Recording
 
-__all__ = ["read_broad", "broad_trials", "broad_groups", "BROAD_FIELDS", "BROAD_SUFFIXES"]
+__all__ = ["read_broad", "broad_from_fields", "broad_trials", "broad_groups", "BROAD_FIELDS",
+           "BROAD_SUFFIXES"]
 
 #: required fields of a BROAD trial (``opt_pos`` is optional)
 BROAD_FIELDS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
@@ -56,7 +57,7 @@ def _load_hdf5(path: Path) -> dict:
                     out[name] = f[name][()]
             if "sampling_rate" not in out and "sampling_rate" in f.attrs:
                 out["sampling_rate"] = f.attrs["sampling_rate"]
-    except (OSError, KeyError, ValueError, TypeError) as err:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as err:
         raise InputError(f"cannot read as HDF5 ({err})", file=str(path)) from None
     return out
 
@@ -120,6 +121,12 @@ def read_broad(path: str | os.PathLike, *, with_position: bool = True) -> Record
     else:
         raise InputError(f"unknown BROAD file suffix {path.suffix!r}; expected "
                          f"{', '.join(BROAD_SUFFIXES)}", file=str(path))
+    return broad_from_fields(d, path, with_position=with_position)
+
+
+def broad_from_fields(d: dict, path: Path, *, with_position: bool = True) -> Recording:
+    """A Recording from BROAD's fields already loaded into ``d`` (name -> array), as
+    :func:`read_broad` makes it (also used for MATLAB v7.3 files with BROAD's names)."""
     gyro = _array(d, "imu_gyr", path, 3, None)
     n = gyro.shape[0]
     accel = _array(d, "imu_acc", path, 3, n)

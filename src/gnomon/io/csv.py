@@ -149,9 +149,12 @@ class _Table:
         j = self.header.index(column)
         return np.array([r[j].strip() for r in self.rows], dtype=str)
 
-    def numbers(self, column: str, *, allow_missing: bool = False) -> np.ndarray:
-        """Column as float; a bad cell raises naming column and row."""
-        s = self.strings(column)
+    def numbers(self, column: str, *, allow_missing: bool = False, rows=slice(None)
+                ) -> np.ndarray:
+        """Column as float (the data rows ``rows``); a bad cell raises naming column and
+        row."""
+        index = np.arange(len(self.rows))[rows]
+        s = self.strings(column)[rows]
         if allow_missing:
             s = np.where(s == "", "nan", s)
         try:
@@ -162,13 +165,13 @@ class _Table:
                     float(cell)
                 except ValueError:
                     what = "empty cell" if cell == "" else f"not a number: {str(cell)!r}"
-                    raise self.error(what, column, i) from None
+                    raise self.error(what, column, int(index[i])) from None
             raise  # pragma: no cover - astype and float disagree
         if not allow_missing:
             bad = ~np.isfinite(values)
             if bad.any():
                 i = int(np.argmax(bad))
-                raise self.error(f"non-finite value {str(s[i])!r}", column, i)
+                raise self.error(f"non-finite value {str(s[i])!r}", column, int(index[i]))
         return values
 
 
@@ -241,27 +244,70 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
                           f"{float(t_raw[i - 1])!r}", name["t"], i)
     t = t_raw * TIME_UNITS[time_unit]
 
+    sensors = ("gyro", "accel", "mag") if has_mag else ("gyro", "accel")
+    empty = {k: np.column_stack([table.strings(name[c]) == "" for c in SENSOR_GROUPS[k]])
+             for k in sensors}
+    multi_rate = any(e.all(axis=1).any() for e in empty.values())
+    rows = {k: slice(None) for k in sensors}  # the rows holding each sensor's samples
+    meta = {}
+    if multi_rate:
+        # an empty group of cells means no sample of that sensor in this row
+        for k in sensors:
+            partial = empty[k].any(axis=1) & ~empty[k].all(axis=1)
+            if partial.any():
+                i = int(np.argmax(partial))
+                col = name[SENSOR_GROUPS[k][int(np.argmax(empty[k][i]))]]
+                raise table.error("empty cell (the other axes of this sensor have a value; "
+                                  "leave all three empty for no sample)", col, i)
+            rows[k] = np.flatnonzero(~empty[k].all(axis=1))
+        if rows["gyro"].size < 2:
+            raise table.error(f"{rows['gyro'].size} row(s) with a gyro sample; at least 2 "
+                              "needed", name["gyr_x"], None)
+        meta = {"format": "csv", "multi_rate": True, "assumed": [
+            "Multi-rate CSV: an empty cell means no sample of that sensor in that row; each "
+            "sensor's time stamps are the times of the rows where its cells are filled."]}
+
     def group(key):
-        return np.column_stack([table.numbers(name[k]) for k in SENSOR_GROUPS[key]])
+        r = rows[key]
+        return np.column_stack([table.numbers(name[k], rows=r) for k in SENSOR_GROUPS[key]])
 
     gyro = group("gyro")
     if gyro_unit == "deg/s":
         gyro = np.deg2rad(gyro)
     accel = group("accel") * ACCEL_UNITS[accel_unit]
     mag = group("mag") if has_mag else None
+    own_t = {}
+    if multi_rate:
+        t_rows = t
+        t = t_rows[rows["gyro"]]
+        for k in ("accel", "mag"):
+            if k in sensors:
+                own_t[f"{k}_t"] = t_rows[rows[k]]
+        if has_mag and rows["mag"].size == 0:
+            mag, own_t["mag_t"] = None, None
+            meta["assumed"].append("The magnetometer columns are empty: no magnetometer.")
+        if rows["accel"].size == 0:
+            raise table.error("no row with an accelerometer sample", name["acc_x"], None)
+        others = np.setdiff1d(np.arange(len(table.rows)), rows["gyro"])
+        for key in (TRUTH_COLUMNS if has_truth else ()) + (("mask",) if has_mask else ()):
+            filled = table.strings(name[key])[others] != ""
+            if filled.any():
+                i = int(others[np.argmax(filled)])
+                raise table.error("a truth or mask value in a row without a gyro sample "
+                                  "(they belong to the gyro's time stamps)", name[key], i)
     q_true = None
     if has_truth:
-        q_true = np.column_stack([table.numbers(name[k], allow_missing=True)
-                                  for k in TRUTH_COLUMNS])
+        q_true = np.column_stack([table.numbers(name[k], allow_missing=True,
+                                                rows=rows["gyro"]) for k in TRUTH_COLUMNS])
         q_true[~np.isfinite(q_true).all(axis=1)] = np.nan  # missing sample: whole row NaN
     mask = None
     if has_mask:
-        s = np.char.lower(table.strings(name["mask"]))
+        s = np.char.lower(table.strings(name["mask"])[rows["gyro"]])
         is_true, is_false = np.isin(s, list(_TRUE)), np.isin(s, list(_FALSE))
         if not np.all(is_true | is_false):
-            i = int(np.argmax(~(is_true | is_false)))
-            raise table.error(f"expected 1/0 or true/false, got {str(s[i])!r}", name["mask"],
-                              i)
+            j = int(np.argmax(~(is_true | is_false)))
+            i = int(rows["gyro"][j]) if multi_rate else j
+            raise table.error(f"expected 1/0 or true/false, got {str(s[j])!r}", name["mask"], i)
         mask = is_true
 
     _plausibility(path, gyro, gyro_unit, accel, accel_unit)
@@ -269,16 +315,21 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
                        "accel": ",".join(name[k] for k in SENSOR_GROUPS["accel"]),
                        "mag": ",".join(name[k] for k in SENSOR_GROUPS["mag"]),
                        "q_true": ",".join(name[k] for k in TRUTH_COLUMNS),
-                       "mask": name["mask"]}
+                       "mask": name["mask"], "accel_t": name["t"], "mag_t": name["t"]}
     try:
         return Recording(
             t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true, mask=mask,
+            meta=meta, **own_t,
             frames=frames if frames is not None else {"reference": "ENU", "body": "sensor"},
             source=path.stem if source is None else str(source),
         )
     except InputError as err:
         column = field_to_column.get(err.field, err.field)
-        raise table.error(err.message, column, err.row) from None
+        row = err.row
+        if multi_rate and row is not None:  # the sensor's own index -> its table row
+            sensor = str(err.field).removesuffix("_t")
+            row = int(rows[sensor if sensor in rows else "gyro"][row])
+        raise table.error(err.message, column, row) from None
 
 
 def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarray,

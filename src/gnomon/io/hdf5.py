@@ -210,7 +210,7 @@ def read_recording(path: str | os.PathLike) -> Recording:
                     extra[key] = ds[()]
     except InputError:
         raise
-    except (OSError, KeyError, ValueError, TypeError) as err:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as err:
         # h5py: "file signature not found", "truncated file", unreadable chunks, ...
         raise InputError(f"cannot read as HDF5 ({err})", file=str(path)) from None
     try:

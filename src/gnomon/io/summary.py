@@ -1,0 +1,60 @@
+"""``gnomon inspect``: what a log holds, from the Recording its reader makes
+(:func:`gnomon.io.inspect` reads, :func:`summarise` describes).
+
+For each sensor (gyro, accelerometer, magnetometer): ``rate_hz`` (median), ``samples``,
+``unit``, first and last time stamp (s), gaps (intervals longer than ``GAP_FACTOR`` = 5
+median intervals: how many and the longest, s) and where it came from (topic, message,
+file). Then the device's own estimate (``q_onboard``: what it is, how many gyro samples
+it covers), the truth when the log has one, the duration, the frames, the device, what
+else the file offers (``available``: topics and instances with message counts) and the
+reader's ``assumed`` sentences. The result is JSON-able.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gnomon.io._common import GAP_FACTOR, gaps
+
+__all__ = ["summarise"]
+
+_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
+_ORIGIN = {"gyro": ("topic", "imu"), "accel": ("topic", "imu"), "mag": ("mag_topic", "mag")}
+
+
+def summarise(rec, path: str = "", fmt: str = "") -> dict:
+    """The summary (module docstring) of a Recording ``rec`` read from ``path``."""
+    meta = rec.meta
+    sensors = []
+    ends = []
+    for name in ("gyro", "accel", "mag"):
+        if name != "gyro" and getattr(rec, name) is None:
+            continue
+        t = rec.times(name)
+        g = gaps(t)
+        origin = next((meta[k] for k in _ORIGIN[name] if meta.get(k)), None)
+        sensors.append({
+            "name": name, "rate_hz": rec.rate_hz(name), "samples": int(t.size),
+            "unit": rec.mag_unit if name == "mag" else _UNITS[name],
+            "start_s": float(t[0]), "end_s": float(t[-1]),
+            "gaps": g["count"], "longest_gap_s": g["longest_s"],
+            "from": str(origin) if origin is not None else None,
+        })
+        ends += [float(t[0]), float(t[-1])]
+
+    def series(q, what):
+        if q is None:
+            return None
+        ok = np.isfinite(q).all(axis=1)
+        return {"what": what, "samples": int(ok.sum()), "coverage": float(ok.mean())}
+
+    return {
+        "file": str(path), "format": fmt or meta.get("format", ""), "source": rec.source,
+        "frames": rec.frames, "duration_s": max(ends) - min(ends),
+        "single_rate": rec.single_rate, "sensors": sensors,
+        "onboard": series(rec.q_onboard, meta.get("onboard") or "the device's own estimate"),
+        "onboard_gravity_deg": meta.get("onboard_gravity_deg"),
+        "truth": series(rec.q_true, "q_true"),
+        "device": meta.get("device"), "available": meta.get("available"),
+        "assumed": list(meta.get("assumed", [])), "gap_factor": GAP_FACTOR,
+    }
