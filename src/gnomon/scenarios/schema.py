@@ -245,6 +245,9 @@ IMU_SCHEMA: dict = {
 }
 KINDS = {"spacecraft": SCHEMA, "imu": IMU_SCHEMA}
 
+#: more simulation steps than this are refused (a typo in ``step_s``, not a simulation)
+MAX_STEPS = 1e9
+
 
 def schema_of(config: dict | None) -> dict:
     """The schema of a scenario mapping: by its ``kind`` (no kind: a spacecraft)."""
@@ -338,6 +341,9 @@ def validate(user: dict) -> dict:
                              field="imu.inclination_deg")
         return cfg
     n = cfg["duration_s"] / cfg["step_s"]
+    if not n <= MAX_STEPS:
+        raise InputError(f"{n:.3g} steps of {cfg['step_s']:g} s over {cfg['duration_s']:g} s: "
+                         f"more than {MAX_STEPS:.0e}", field="step_s")
     if abs(n - round(n)) > 1e-9 * max(1.0, n):
         raise InputError(f"step {cfg['step_s']:g} s does not divide the duration "
                          f"{cfg['duration_s']:g} s", field="step_s")
