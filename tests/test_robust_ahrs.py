@@ -54,7 +54,7 @@ def _twin_run(params, rec, ts):
     """The readable ``update`` sample by sample: ``q`` (N, 4), the per-sample signals of
     ``run`` and the filter (its final state)."""
     ref = RobustAHRS(params)
-    ref.start(ts)  # the same nominal sample time as the kernel run
+    ref.start(*ts)  # the same nominal sample times as the kernel run
     dt = np.diff(rec.t, prepend=rec.t[0])
     q, sig = [], {k: [] for k in ("bias_rad_s", "rest", "mag_disturbed", "acc_correction_rad_s",
                                  "mag_gain", "hard_iron", "acc_skipped", "mag_skipped", "gap")}

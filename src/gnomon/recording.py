@@ -235,6 +235,15 @@ class Recording:
         t = self.times(name)
         return float(1.0 / np.median(np.diff(t))) if t.size > 1 else math.nan
 
+    def nominal_dt_s(self, name: str, max_dt_s: float = math.inf, first: int = 100,
+                     default: float = math.nan) -> float:
+        """A sensor's nominal sample interval (s): the median of its first ``first``
+        intervals that are positive and at most ``max_dt_s`` (longer ones are gaps);
+        ``default`` when there is none."""
+        dt = np.diff(self.times(name))
+        dt = dt[(dt > 0) & (dt <= max_dt_s)][:first]
+        return float(np.median(dt)) if dt.size else float(default)
+
     def arrivals(self, name: str) -> np.ndarray:
         """For each row of the time base, how many samples of sensor ``name`` arrive there
         (N,) int: those with ``t[k-1] < time <= t[k]`` (row 0: ``time <= t[0]``); samples

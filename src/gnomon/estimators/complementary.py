@@ -270,6 +270,7 @@ class TiltComplementaryFilter(Estimator):
     reference_frame = "ENU"
     Params = TiltCFParams
     needs = ("gyro", "accel")
+    multi_rate = True
     state_fields = ("state", "t_last", "_t", "_speed")
 
     def reset(self) -> None:
@@ -322,7 +323,7 @@ class TiltComplementaryFilter(Estimator):
     def run(self, rec: Recording) -> Estimate:
         self.check_inputs(rec)
         p = self.params
-        accel = rec.accel
+        accel = rec.on_time_base("accel")  # own rate: NaN rows where no new sample arrived
         if p.speed_compensation:
             speed = rec.extra.get("speed_m_s")
             if speed is None:
@@ -334,8 +335,8 @@ class TiltComplementaryFilter(Estimator):
                                  field="extra.speed_m_s")
             accel = compensate_accel(rec.t, accel, rec.gyro, speed)
         if self.state is None:
-            n0 = min(p.init_samples, rec.t.size)
-            q0, b0, t_prev = quat_from_accel(np.mean(accel[:n0], axis=0)), np.zeros(3), math.nan
+            first = accel[np.isfinite(accel[:, 0])][:p.init_samples]
+            q0, b0, t_prev = quat_from_accel(np.mean(first, axis=0)), np.zeros(3), math.nan
         else:  # continue from the state of an earlier run
             q0, b0 = self.q, self.bias_rad_s
             t_prev = rec.t[0] - self.first_dt(rec)
@@ -359,8 +360,10 @@ def tilt_step_reference(s, params: TiltCFParams, dt_s: float, gyro_rad_s, accel_
     q = quat_mul(s.q, quat_from_rotvec((np.asarray(gyro_rad_s, float) - s.bias) * dt_s))
     s.q[:] = q / np.linalg.norm(q)
     s.acc_rejected = True
-    if accel_m_s2 is None:
+    s.since_acc_s += dt_s
+    if accel_m_s2 is None:  # no new sample: no correction
         return
+    dt_s, s.since_acc_s = s.since_acc_s, 0.0  # the correction covers the time since the last
     f = np.asarray(accel_m_s2, float)
     nf = float(np.linalg.norm(f))
     g, rel = params.gravity_m_s2, params.accel_rejection_rel

@@ -89,6 +89,7 @@ class Mahony(Estimator):
     reference_frame = "ENU"
     Params = MahonyParams
     needs = ("gyro", "accel", "mag")
+    multi_rate = True
     state_fields = ("state", "t_last")
 
     def reset(self) -> None:
@@ -137,11 +138,21 @@ class Mahony(Estimator):
         if dt_s > p.max_dt_s:
             self.flags["gap"] = True
             s.q[:] = q / np.linalg.norm(q)
+            s.since_acc_s = s.since_mag_s = 0.0
             return self.q
         e_acc, ok_a = self._accel_error(q, accel_m_s2)
         e_mag, ok_m = self._mag_error(q, mag_uT)
         self.flags["acc_skipped"] = not ok_a
         self.flags["mag_skipped"] = not ok_m
+        # each correction over the time since that sensor's previous sample (its own rate)
+        s.since_acc_s += dt_s
+        s.since_mag_s += dt_s
+        e_acc = e_acc * (min(s.since_acc_s, p.max_dt_s) / dt_s)
+        e_mag = e_mag * (min(s.since_mag_s, p.max_dt_s) / dt_s)
+        if accel_m_s2 is not None:
+            s.since_acc_s = 0.0
+        if mag_uT is not None:
+            s.since_mag_s = 0.0
         s.bias[:] = s.bias - p.ki_rad_s2 * (e_acc + e_mag) * dt_s
         correction = p.kp_acc_rad_s * e_acc + p.kp_mag_rad_s * e_mag
         q = quat_mul(q, quat_from_rotvec(correction * dt_s))
@@ -180,7 +191,7 @@ class Mahony(Estimator):
         p = params or MahonyParams()
         t = recs[0].t if recs else None
         if len(recs) < 2 or any(r.t.shape != t.shape or not np.array_equal(r.t, t)
-                                for r in recs):
+                                or not r.single_rate for r in recs):
             return [cls(p).run(rec).q for rec in recs]
         q0 = []
         for rec in recs:
@@ -207,9 +218,11 @@ class Mahony(Estimator):
         q_out = np.empty((n, 4))
         b_out = np.empty((n, 3))
         flags = np.empty(n, np.uint8)
-        mahony_batch(dt, np.ascontiguousarray(rec.gyro), np.ascontiguousarray(rec.accel),
-                     np.ascontiguousarray(rec.mag), self.state, coefficients(p), q_out, b_out,
-                     flags)
+        # each sensor at its own rate: rows without a new sample are NaN (no correction)
+        mahony_batch(dt, np.ascontiguousarray(rec.gyro),
+                     np.ascontiguousarray(rec.on_time_base("accel")),
+                     np.ascontiguousarray(rec.on_time_base("mag")), self.state, coefficients(p),
+                     q_out, b_out, flags)
         self.t_last = float(rec.t[-1])
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),

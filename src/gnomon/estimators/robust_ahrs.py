@@ -67,9 +67,11 @@ n = ENU. The estimate is
   that stays steady for ``mag_new_s`` of motion (``mag_new_first_s`` when no
   reference exists yet) becomes the reference.
 
-Filter coefficients use the nominal sample time ``ts`` (the median of the first
-100 regular intervals of the first recording run, or the first positive ``dt`` of
-``update``, or ``start(ts_s)``); the gyro is integrated over the actual intervals.
+Filter coefficients use nominal sample times ``ts`` = (gyro, accelerometer,
+magnetometer): for ``run`` the median of the first 100 regular intervals of each
+sensor of the first recording run (every sensor at its own rate: a row without a new
+sample of a sensor skips its phase); for ``update`` the first positive ``dt`` or
+``start(ts_s, accel_ts_s, mag_ts_s)``. The gyro is integrated over the actual intervals.
 Intervals longer than ``max_dt_s`` are gaps (gyro only). Streaming
 ``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)``: ``None`` (or a zero
 vector, as in a recording) is no new sample of that sensor and skips its phase.
@@ -245,11 +247,11 @@ def _strapdown(s, dt, g):
 def _rest_acc(s, c, a):
     """Rest detection, accelerometer part: rest after ``rest_min_s`` within the threshold
     of the low-passed specific force ``a`` (m/s²)."""
-    dev = a - _lowpass(s.rest_acc_lp, a, c.rest_lp)
+    dev = a - _lowpass(s.rest_acc_lp, a, c.rest_acc_lp)
     if dev @ dev >= c.rest_th_acc2:
         s.rest_t, s.rest = 0.0, False
     else:
-        s.rest_t += c.ts_s
+        s.rest_t += c.ts_acc_s
         if s.rest_t >= c.rest_min_s:
             s.rest = True
 
@@ -266,7 +268,7 @@ def _inclination(s, c, a):
     corr = (np.array([cw, 0.5 * f[1] / cw, -0.5 * f[0] / cw, 0.0]) if cw > 1e-6
             else np.array([0.0, 1.0, 0.0, 0.0]))
     s.q_acc = _normalise(quat_mul(corr, s.q_acc))
-    s.acc_rate = math.hypot(f[0], f[1]) / c.ts_s  # sin(correction angle) / ts
+    s.acc_rate = math.hypot(f[0], f[1]) / c.ts_acc_s  # sin(correction angle) / ts
     return f
 
 
@@ -287,7 +289,7 @@ def _bias_kf(s, c, f):
     if c.rest_bias and s.rest:
         _bias_update(s, c, np.eye(3), s.gyro_lp - s.bias, np.full(3, c.w_rest))
     elif c.motion_bias and f is not None:
-        y = np.array([-f[1] / c.ts_s + rb_lp[0], f[0] / c.ts_s + rb_lp[1], 0.0])
+        y = np.array([-f[1] / c.ts_acc_s + rb_lp[0], f[0] / c.ts_acc_s + rb_lp[1], 0.0])
         _bias_update(s, c, H, y - H @ s.bias, np.array([c.w_motion, c.w_motion,
                                                         c.w_vertical]))
 
@@ -462,26 +464,34 @@ class RobustAHRS(Estimator):
     reference_frame = "ENU"
     Params = RobustAHRSParams
     needs = ("gyro", "accel", "mag")
+    multi_rate = True
     state_fields = ("state", "ts", "t_last")
 
     def reset(self) -> None:
         self.state = new_state(self.params)  # one STATE record (gnomon.kernels.robust_ahrs)
-        self.ts = None  # s, nominal sample time of the filter coefficients
+        self.ts = None  # s: nominal sample times (gyro, accelerometer, magnetometer)
         self.t_last = None  # s, time of the last sample processed by ``run``
         self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
 
-    def start(self, ts_s: float) -> None:
-        """Fix the nominal sample time (s) used for the filter coefficients."""
-        if not (ts_s > 0 and math.isfinite(ts_s)):
-            raise InputError(f"sample time must be > 0, got {ts_s!r}", field="ts_s")
-        self.ts = float(ts_s)
+    def start(self, ts_s: float, accel_ts_s: float | None = None,
+              mag_ts_s: float | None = None) -> None:
+        """Fix the nominal sample times (s) of the filter coefficients: the gyro's and, when
+        they run at their own rates, the accelerometer's and the magnetometer's (default:
+        the gyro's)."""
+        times = []
+        for name, v in (("ts_s", ts_s), ("accel_ts_s", accel_ts_s), ("mag_ts_s", mag_ts_s)):
+            v = ts_s if v is None else v
+            if not (v > 0 and math.isfinite(v)):
+                raise InputError(f"sample time must be > 0, got {v!r}", field=name)
+            times.append(float(v))
+        self.ts = tuple(times)
 
     def coefficients(self) -> Coefficients:
-        """The kernel's coefficients for ``params`` and the nominal sample time ``ts``."""
+        """The kernel's coefficients for ``params`` and the nominal sample times ``ts``."""
         cached = getattr(self, "_coefficients", None)
         if cached is None or cached[0] != (self.params, self.ts):
             cached = self._coefficients = ((self.params, self.ts),
-                                           coefficients(self.params, self.ts))
+                                           coefficients(self.params, *self.ts))
         return cached[1]
 
     @property
@@ -542,17 +552,19 @@ class RobustAHRS(Estimator):
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
         if self.ts is None:
-            # nominal sample time: median of the first (up to) 100 regular intervals, so
-            # that a run split after 100 samples resumes exactly
-            pos = dt[(dt > 0) & (dt <= self.params.max_dt_s)][:100]
-            self.start(float(np.median(pos)) if pos.size else 0.01)
+            # nominal sample times: median of the first (up to) 100 regular intervals of
+            # each sensor, so that a run split after 100 samples resumes exactly
+            self.start(*(rec.nominal_dt_s(name, self.params.max_dt_s, default=0.01)
+                         for name in ("gyro", "accel", "mag")))
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
                "hi": np.empty((n, 3)), "flags": np.empty(n, np.int64)}
         # strided views are fine for the kernel (no copy)
+        # each sensor at its own rate: NaN rows (no new sample) skip their phase
         robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
-                          np.asarray(rec.accel, dtype=float),
-                          np.asarray(rec.mag, dtype=float), self.state, self.coefficients(),
+                          np.asarray(rec.on_time_base("accel"), dtype=float),
+                          np.asarray(rec.on_time_base("mag"), dtype=float), self.state,
+                          self.coefficients(),
                           out["q"], out["bias"], out["rest"], out["dist"], out["acc_rate"],
                           out["k_mag"], out["hi"], out["flags"])
         self.t_last = float(rec.t[-1])

@@ -26,8 +26,11 @@ from gnomon.kernels.quat import exp_mul as _exp_mul
 # move by rounding only, ~1e-15; the tests hold the kernels to 1e-12 of the reference).
 _FAST = {"contract", "arcp", "reassoc", "nsz"}
 
-#: The single-stream state: ``q`` (4,) ``q_nb`` (ENU from body), ``bias`` (3,) rad/s.
-STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,))])
+#: The single-stream state: ``q`` (4,) ``q_nb`` (ENU from body), ``bias`` (3,) rad/s, and
+#: the time (s) since the accelerometer and the magnetometer were last used (each sensor
+#: at its own rate: a correction is integrated over the interval since its last sample).
+STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,)), ("since_acc_s", "f8"),
+                  ("since_mag_s", "f8")])
 
 
 class Coefficients(NamedTuple):
@@ -58,13 +61,15 @@ def new_state(q0, bias0=(0.0, 0.0, 0.0)) -> np.ndarray:
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
 def _accel_error(ux, uy, uz, ax, ay, az):
     """Accelerometer phase: ``e_acc = a/|a| × up_b`` (body; ``up_b`` the third row of
-    ``R_nb``). Returns ``(ex, ey, ez, skipped)``; a zero vector gives a zero error."""
+    ``R_nb``). Returns ``(ex, ey, ez, skipped)``; a zero or NaN vector (no new sample)
+    gives a zero error."""
     na = math.sqrt(ax * ax + ay * ay + az * az)
-    ia = 1.0 / na if na > 0.0 else 0.0
-    ax *= ia
-    ay *= ia
-    az *= ia
-    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, na == 0.0
+    ok = na > 0.0
+    ia = 1.0 / na if ok else 0.0
+    ax = ax * ia if ok else 0.0
+    ay = ay * ia if ok else 0.0
+    az = az * ia if ok else 0.0
+    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, not ok
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
@@ -77,30 +82,33 @@ def _mag_error(c00, c01, c02, c10, c11, c12, ux, uy, uz, mx, my, mz, heading_onl
     (``rn = |h_xy|``): its vertical part ``hx·rn`` is the heading error, all that
     ``heading_only`` keeps (along up)."""
     nm = math.sqrt(mx * mx + my * my + mz * mz)
-    im = 1.0 / nm if nm > 0.0 else 0.0
-    mx *= im
-    my *= im
-    mz *= im
+    ok = nm > 0.0
+    im = 1.0 / nm if ok else 0.0
+    mx = mx * im if ok else 0.0
+    my = my * im if ok else 0.0
+    mz = mz * im if ok else 0.0
     hx = c00 * mx + c01 * my + c02 * mz
     hy = c10 * mx + c11 * my + c12 * mz
     rn = math.sqrt(hx * hx + hy * hy)
     if heading_only:
         d = hx * rn
-        return d * ux, d * uy, d * uz, nm == 0.0
+        return d * ux, d * uy, d * uz, not ok
     hz = ux * mx + uy * my + uz * mz
     n0 = hz * (hy - rn)
     n1 = -hx * hz
     n2 = hx * rn
     return (c00 * n0 + c10 * n1 + ux * n2, c01 * n0 + c11 * n1 + uy * n2,
-            c02 * n0 + c12 * n1 + uz * n2, nm == 0.0)
+            c02 * n0 + c12 * n1 + uz * n2, not ok)
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
-def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz, c, trig):
+def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz, c, trig, ra, rm):
     """One corrected step (0 < dt <= max_dt) on scalars, coefficients ``c``.
 
     Gyro prediction, the two vector errors, then the PI correction
-    ``ḃ = -k_I (e_acc + e_mag)``, ``q ← q ⊗ exp((k_a e_acc + k_m e_mag) dt)``.
+    ``ḃ = -k_I (e_acc + e_mag)``, ``q ← q ⊗ exp((k_a e_acc + k_m e_mag) dt)``, each error
+    weighted by ``ra``, ``rm``: the interval since that sensor's previous sample over
+    ``dt`` (1 when every sensor is sampled with the gyro).
     Returns ``(w, x, y, z, b0, b1, b2, flags, redo)``: flags bit 1 accelerometer skipped,
     bit 2 magnetometer skipped; ``redo``: with ``trig`` False, the step needed the exact
     forms (a rotation of >= 0.05 rad, see ``gnomon.kernels.quat.exp_mul``).
@@ -111,6 +119,8 @@ def _core(w, x, y, z, b0, b1, b2, dt, gx, gy, gz, ax, ay, az, mx, my, mz, c, tri
     ex, ey, ez, skip_a = _accel_error(ux, uy, uz, ax, ay, az)
     fx, fy, fz, skip_m = _mag_error(c00, c01, c02, c10, c11, c12, ux, uy, uz, mx, my, mz,
                                     c.heading_only)
+    ex, ey, ez = ex * ra, ey * ra, ez * ra
+    fx, fy, fz = fx * rm, fy * rm, fz * rm
     ki = c.ki_rad_s2
     b0 -= ki * (ex + fx) * dt
     b1 -= ki * (ey + fy) * dt
@@ -136,7 +146,7 @@ def mahony_step(q, b, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
         return 4
     q[0], q[1], q[2], q[3], b[0], b[1], b[2], flags, _ = _core(
         q[0], q[1], q[2], q[3], b[0], b[1], b[2], dt, gx, gy, gz, ax, ay, az, mx, my, mz,
-        c, True)
+        c, True, 1.0, 1.0)
     return flags
 
 
@@ -151,6 +161,7 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
     s = state[0]
     w, x, y, z = s.q[0], s.q[1], s.q[2], s.q[3]
     b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
+    sa, sm = s.since_acc_s, s.since_mag_s
     max_dt = c.max_dt_s
     for i in range(dt.shape[0]):
         h = dt[i]
@@ -158,11 +169,21 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
         if h > max_dt:  # gap: gyro propagation only
             w, x, y, z, _ = _exp_mul(w, x, y, z, (gyro[i, 0] - b0) * h, (gyro[i, 1] - b1) * h,
                                      (gyro[i, 2] - b2) * h, True, True)
+            sa, sm = 0.0, 0.0
             f = 4
         elif h > 0.0:
+            # a sensor without a new sample in this row (NaN) gives no correction; a new
+            # one is integrated over the time since its previous sample
+            sa, sm = sa + h, sm + h
+            new_a = acc[i, 0] == acc[i, 0]
+            new_m = mag[i, 0] == mag[i, 0]
+            ra = min(sa, max_dt) / h if new_a else 0.0
+            rm = min(sm, max_dt) / h if new_m else 0.0
             w, x, y, z, b0, b1, b2, f, _ = _core(
                 w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
-                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], c, True)
+                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], c, True, ra, rm)
+            sa = 0.0 if new_a else sa
+            sm = 0.0 if new_m else sm
         flags[i] = f
         q_out[i, 0] = w
         q_out[i, 1] = x
@@ -172,6 +193,7 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
         b_out[i, 1] = b1
         b_out[i, 2] = b2
     s.q[0], s.q[1], s.q[2], s.q[3] = w, x, y, z
+    s.since_acc_s, s.since_mag_s = sa, sm
     s.bias[0], s.bias[1], s.bias[2] = b0, b1, b2
 
 
@@ -212,7 +234,7 @@ def mahony_batch_runs(dt, gyro, acc, mag, q, b, c, q_out):
                     q[0, r], q[1, r], q[2, r], q[3, r], b[0, r], b[1, r], b[2, r], h,
                     gyro[i, 0, r], gyro[i, 1, r], gyro[i, 2, r], acc[i, 0, r],
                     acc[i, 1, r], acc[i, 2, r], mag[i, 0, r], mag[i, 1, r], mag[i, 2, r],
-                    c, False)
+                    c, False, 1.0, 1.0)
                 redo[r] = red
                 n_redo += red
             for r in range(r_count if n_redo else 0):  # the rare exact steps, again

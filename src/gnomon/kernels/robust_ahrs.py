@@ -71,11 +71,13 @@ class Coefficients(NamedTuple):
     """Everything the step needs that does not evolve, derived once from the parameters
     and the nominal sample time (``coefficients``). Angles in rad, rates in rad/s."""
 
-    ts_s: float  # nominal sample time
+    ts_s: float  # nominal gyro sample time
+    ts_acc_s: float  # nominal accelerometer sample time (its own rate)
     max_dt_s: float  # longer intervals are gaps (gyro only)
     # rest detection
     rest_bias: bool
-    rest_lp: LowPass
+    rest_lp: LowPass  # the gyro (sample time ts_s)
+    rest_acc_lp: LowPass  # the accelerometer (sample time ts_acc_s)
     rest_th_gyro2: float  # (rad/s)², on |ω - lp(ω)|²
     rest_th_acc2: float  # (m/s²)², on |a - lp(a)|²
     rest_min_s: float
@@ -84,7 +86,7 @@ class Coefficients(NamedTuple):
     # gyro-bias Kalman filter, run on every bias_every-th accelerometer sample
     motion_bias: bool
     bias_every: int
-    bias_lp: LowPass  # R_6b and R_6b b, sample time ts_s * bias_every
+    bias_lp: LowPass  # R_6b and R_6b b, sample time ts_acc_s * bias_every
     bias_p0: float  # (rad/s)²: the variance stops growing there
     bias_v: float  # (rad/s)² per bias update: process noise
     w_rest: float  # (rad/s)²: measurement variances
@@ -93,7 +95,7 @@ class Coefficients(NamedTuple):
     bias_clip: float  # rad/s: bound on the bias and its innovations
     # magnetometer, the heading filter run on the mean field of every mag_every samples
     mag_every: int
-    ts_mag: float  # ts_s * mag_every
+    ts_mag: float  # the magnetometer's nominal sample time * mag_every
     hi_lambda: float  # hard-iron window: forgetting factor per heading update (0: off)
     hi_reg: float
     hi_gate: float
@@ -145,13 +147,17 @@ def _gain(tau_s: float, ts_s: float) -> float:
     return 1.0 if tau_s <= 0 else 1.0 - math.exp(-ts_s / tau_s)
 
 
-def coefficients(p, ts_s: float) -> Coefficients:
+def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
+                 ts_mag_s: float | None = None) -> Coefficients:
     """The step's coefficients for the parameters ``p`` (a ``RobustAHRSParams``) and the
-    nominal sample time ``ts_s`` (s)."""
+    nominal sample times (s) of the gyro ``ts_s``, the accelerometer ``ts_acc_s`` and the
+    magnetometer ``ts_mag_s`` (each sensor at its own rate; None: the gyro's)."""
     d2r = math.pi / 180.0
     ts_s = float(ts_s)
-    tsm = ts_s * p.mag_every  # the heading filter's interval
-    ts_b = ts_s * p.bias_every  # the bias filter's interval
+    ts_acc = ts_s if ts_acc_s is None else float(ts_acc_s)
+    ts_m = ts_s if ts_mag_s is None else float(ts_mag_s)
+    tsm = ts_m * p.mag_every  # the heading filter's interval
+    ts_b = ts_acc * p.bias_every  # the bias filter's interval
     # bias process noise: the variance grows by (0.1 deg/s)² in bias_forgetting_s; the
     # measurement variances make the steady-state std the stated sigma
     bias_v = (0.1 * d2r) ** 2 * ts_b / p.bias_forgetting_s
@@ -165,11 +171,12 @@ def coefficients(p, ts_s: float) -> Coefficients:
     r_head = p.tau_mag_s ** 2 / tsm if p.tau_mag_s > 0 else 1.0
     new_gyro = p.mag_new_min_gyro_deg_s * d2r
     return Coefficients(
-        ts_s=ts_s, max_dt_s=float(p.max_dt_s),
+        ts_s=ts_s, ts_acc_s=ts_acc, max_dt_s=float(p.max_dt_s),
         rest_bias=bool(p.rest_bias), rest_lp=_lowpass(p.rest_tau_s, ts_s),
+        rest_acc_lp=_lowpass(p.rest_tau_s, ts_acc),
         rest_th_gyro2=(p.rest_th_gyro_deg_s * d2r) ** 2, rest_th_acc2=p.rest_th_acc_m_s2 ** 2,
         rest_min_s=float(p.rest_min_s),
-        acc_lp=_lowpass(p.tau_acc_s, ts_s),
+        acc_lp=_lowpass(p.tau_acc_s, ts_acc),
         motion_bias=bool(p.motion_bias), bias_every=int(p.bias_every),
         bias_lp=_lowpass(p.tau_acc_s, ts_b),
         bias_p0=(p.bias_sigma_init_deg_s * d2r) ** 2, bias_v=bias_v,
@@ -379,13 +386,13 @@ def rest_gyro(s, c, gx, gy, gz):
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
     threshold of the low-passed specific force."""
-    lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_lp)
+    lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_acc_lp)
     dx, dy, dz = ax - lx, ay - ly, az - lz
     if dx * dx + dy * dy + dz * dz >= c.rest_th_acc2:
         s.rest_t = 0.0
         s.rest = False
     else:
-        s.rest_t += c.ts_s
+        s.rest_t += c.ts_acc_s
         if s.rest_t >= c.rest_min_s:
             s.rest = True
 
@@ -432,7 +439,7 @@ def inclination(s, c, ax, ay, az):
         pw, px, py = 0.0, 1.0, 0.0
     w, x, y, z = quat.mul(pw, px, py, 0.0, q[0], q[1], q[2], q[3])
     q[0], q[1], q[2], q[3] = quat.normalised(w, x, y, z)
-    s.acc_rate = math.sqrt(fx * fx + fy * fy) / c.ts_s  # sin(correction angle) / ts
+    s.acc_rate = math.sqrt(fx * fx + fy * fy) / c.ts_acc_s  # sin(correction angle) / ts
     return fx, fy, True
 
 
@@ -462,8 +469,8 @@ def bias_kf(s, c, R, fx, fy, have_f):
                     g[0] - b0, g[1] - b1, g[2] - b2, c.w_rest, c.w_rest, c.w_rest)
     elif c.motion_bias and have_f:
         hb0, hb1, hb2 = linalg.mat3_vec(H, b0, b1, b2)
-        e0 = -fy / c.ts_s + rb0 - hb0
-        e1 = fx / c.ts_s + rb1 - hb1
+        e0 = -fy / c.ts_acc_s + rb0 - hb0
+        e1 = fx / c.ts_acc_s + rb1 - hb1
         bias_update(s, c, H, e0, e1, -hb2, c.w_motion, c.w_motion, c.w_vertical)
 
 

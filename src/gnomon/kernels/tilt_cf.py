@@ -7,6 +7,8 @@ follows ``gnomon.kernels`` (Coefficients NamedTuple, State record, phases):
 * ``Coefficients``: ``time_constant_s`` (T), ``bias_gain_1_s2`` (r₂),
   ``accel_rejection_rel``, ``gravity_m_s2``;
 * ``STATE``: ``q`` (4,) ``q_nb`` (ENU from body), ``bias`` (3,) rad/s,
+  ``since_acc_s`` (time since the accelerometer's previous sample: each correction is
+  integrated over it, so an accelerometer slower than the gyro keeps its gain),
   ``acc_rejected`` (the last sample's accelerometer was not used);
 * phases: ``predict`` (gyro), ``correct_accel`` (the fraction ``dt/(T + dt)`` of the
   rotation taking the measured up direction onto the predicted one, and the bias
@@ -24,7 +26,8 @@ from numba import njit
 from gnomon.kernels.linalg import cross
 from gnomon.kernels.quat import exp_mul
 
-STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,)), ("acc_rejected", "?")])
+STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,)), ("since_acc_s", "f8"),
+                  ("acc_rejected", "?")], align=True)
 
 
 class Coefficients(NamedTuple):
@@ -61,10 +64,16 @@ def predict(s, dt, gx, gy, gz):
 @njit(inline="always", error_model="numpy")
 def correct_accel(s, c, dt, ax, ay, az):
     """Accelerometer phase. Rotation vector ``e`` (body) taking the measured up direction
-    ``a/|a|`` onto the predicted ``R_nbᵀ e_z``; ``q ← q ⊗ exp(dt/(T + dt) e)``,
-    ``b̂ ← b̂ − r₂ dt e``. Skipped (``acc_rejected``) for a zero vector or when
-    ``||a| − g| > accel_rejection_rel · g``."""
+    ``a/|a|`` onto the predicted ``R_nbᵀ e_z``; ``q ← q ⊗ exp(h/(T + h) e)``,
+    ``b̂ ← b̂ − r₂ h e`` with ``h`` the time since the accelerometer's previous sample
+    (``dt`` when it runs with the gyro). Skipped (``acc_rejected``) for a zero or NaN
+    vector (no new sample) or when ``||a| − g| > accel_rejection_rel · g``."""
     s.acc_rejected = True
+    s.since_acc_s += dt
+    if not ax == ax:  # no new sample in this row
+        return
+    dt = s.since_acc_s
+    s.since_acc_s = 0.0
     nf = math.sqrt(ax * ax + ay * ay + az * az)
     g = c.gravity_m_s2
     if not nf > 0.0 or (c.accel_rejection_rel > 0.0
