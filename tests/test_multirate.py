@@ -77,3 +77,26 @@ def test_lower_sensor_rates_keep_the_accuracy(recs, name):
     # the same information at a quarter of the rate: within 0.2 deg (or 30 %) of full rate
     assert np.isfinite(e_dec).all()
     assert rms_dec < max(1.3 * rms_full, rms_full + 0.2), (rms_full, rms_dec)
+
+
+@pytest.mark.parametrize("name", ["eskf-r6", "eskf-r3"])
+def test_eskf_one_sensor_rows_equal_the_readable_update(recs, name):
+    """The ESKF corrects with the accelerometer's or the magnetometer's rows alone where
+    only one has a new sample (here never both: their samples arrive in alternate rows)."""
+    _, rec = recs
+    start = registry.create(name)
+    start.run(rec.slice(0, 400))
+    rest = rec.slice(400, len(rec))
+    kernel, twin = registry.create(name), registry.create(name)
+    kernel.set_state(start.get_state())
+    twin.set_state(start.get_state())
+    est = kernel.run(rest)
+    acc, mag = rest.on_time_base("accel"), rest.on_time_base("mag")
+    assert not (np.isfinite(acc[:, 0]) & np.isfinite(mag[:, 0])).any()
+    dt = np.diff(rest.t, prepend=rec.t[399])
+    q = np.array([twin.update(dt[k], rest.gyro[k],
+                              acc[k] if np.isfinite(acc[k, 0]) else None,
+                              mag[k] if np.isfinite(mag[k, 0]) else None)
+                  for k in range(len(rest))])
+    np.testing.assert_allclose(q, est.q, atol=1e-10)
+    np.testing.assert_allclose(twin.P, kernel.P, atol=1e-12)

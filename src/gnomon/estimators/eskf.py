@@ -306,7 +306,8 @@ class Eskf(Estimator):
     initialises it (TRIAD).
     Signals: ``bias_rad_s`` (N, 3), ``innovation`` (N, r), ``cov_diag`` (N, 6)
     (attitude part in rad² of ``δe`` = half-angles, bias part in (rad/s)²),
-    ``update_skipped`` (N,) (accelerometer or magnetometer dropout: prediction only).
+    ``update_skipped`` (N,) (not both sensors had a usable sample: prediction only, or
+    the one sensor's rows of the model).
     """
 
     name = "eskf"
@@ -314,6 +315,7 @@ class Eskf(Estimator):
     paper = "seed 002 (Bilous & Nesterenko)"
     Params = EskfParams
     needs = ("gyro", "accel", "mag")
+    multi_rate = True
     kind = "imu"
     reference_frame = "ENU"
     state_fields = ("state", "b0_mag", "t_last")
@@ -385,11 +387,12 @@ class Eskf(Estimator):
         """One sample with the readable reference; returns ``q_nb`` (4,) after it.
 
         ``dt_s`` s since the previous sample (0 at the first); gyro rad/s, accelerometer
-        m/s², magnetometer µT, body frame. ``None`` = no new sample of that sensor: without
-        the gyro there is no prediction; without the accelerometer or the magnetometer no
-        correction (both measurement models are built from both sensors), as for a dropout
-        (a zero vector). Phases as the kernel's ``step``: ``propagate`` (gyro),
-        ``_reference_and_gates``, ``_accel_lowpass``, ``measurement_r6`` / ``_r3``, ``update``.
+        m/s², magnetometer µT, body frame. ``None`` = no new sample of that sensor (as a
+        zero-vector dropout): without the gyro there is no prediction; with only one of
+        the accelerometer and the magnetometer, that sensor's rows of the measurement
+        model correct the state (``_one_sensor``; each sensor at its own rate). Phases as
+        the kernel's ``step``: ``propagate`` (gyro), ``_reference_and_gates``,
+        ``_accel_lowpass``, ``measurement_r6`` / ``_r3``, ``update``.
         """
         p = self.params
         a = None if accel_m_s2 is None else np.asarray(accel_m_s2, float)
@@ -400,20 +403,52 @@ class Eskf(Estimator):
         if gyro_rad_s is not None:
             s.q, s.P = propagate(s.q, s.bias, s.P, gyro_rad_s, dt_s, p.gyro_noise, p.bias_rw)
         self.innovation = np.zeros(6 if p.measurement == "r6" else 3)
-        if a is None or m is None:
+        s.since_acc_s += dt_s
+        if m is not None:
+            m = m / self.b0_mag
+        na = float(np.linalg.norm(a)) if a is not None else 0.0
+        nm = float(np.linalg.norm(m)) if m is not None else 0.0
+        if not (na > 0 or nm > 0):  # no usable sample: prediction only
             return s.q.copy()
-        m = m / self.b0_mag
-        na, nm = float(np.linalg.norm(a)), float(np.linalg.norm(m))
-        if not (na > 0 and nm > 0):  # dropout: propagate only
+        if not (na > 0 and nm > 0):  # one sensor alone: its rows of the model
+            self._one_sensor(s, a if na > 0 else None, m if nm > 0 else None, na, nm)
             return s.q.copy()
         fa, fm, h, z = self._reference_and_gates(s, a, m, na, nm, dt_s)
         if p.accel_lowpass_tau > 0.0:
-            a = self._accel_lowpass(s, a, dt_s)
+            a = self._accel_lowpass(s, a, s.since_acc_s)
+        s.since_acc_s = 0.0
         meas = measurement_r6 if p.measurement == "r6" else measurement_r3
         y, D = meas(s.q, a, m, p.gravity, h, z)
         s.q, s.bias, s.P, _ = update(s.q, s.bias, s.P, y, D, self._R(fa, fm, h))
         self.innovation = y
         return s.q.copy()
+
+    def _one_sensor(self, s, a, m, na: float, nm: float) -> None:
+        """The correction by the accelerometer alone (``m`` None) or the magnetometer alone
+        (``a`` None): that sensor's rows of the measurement model (r6: three each; r3: the
+        two tilt rows or the heading row). The magnetometer's gate reads the field's
+        vertical through the attitude estimate; the inclination estimate does not move."""
+        p = self.params
+        h, z = float(np.sqrt(1.0 - s.dip_s**2)), float(-s.dip_s)
+        accel_alone = a is not None
+        if accel_alone:
+            fa, fm = _gate(abs(na - p.gravity), p.accel_gate), 1.0
+            if p.accel_lowpass_tau > 0.0:
+                a = self._accel_lowpass(s, a, s.since_acc_s)
+            s.since_acc_s = 0.0
+            m = np.zeros(3)
+        else:
+            up = (dcm_from_quat(s.q) @ m)[2] / nm
+            fa, fm = 1.0, _gate(max(abs(nm - 1.0), abs(up - s.dip_s)), p.mag_gate)
+            a = np.zeros(3)
+        meas = measurement_r6 if p.measurement == "r6" else measurement_r3
+        y, D = meas(s.q, a, m, p.gravity, h, z)
+        R = self._R(fa, fm, h)
+        if p.measurement == "r6":
+            rows = slice(0, 3) if accel_alone else slice(3, 6)
+        else:
+            rows = slice(0, 2) if accel_alone else slice(2, 3)
+        s.q, s.bias, s.P, _ = update(s.q, s.bias, s.P, y[rows], D[rows], R[rows, rows])
 
     def _reference_and_gates(self, s, a, m, na: float, nm: float, dt: float):
         """Variance gates ``fa``, ``fm`` and the reference field ``(H, Z)`` after updating
@@ -428,7 +463,8 @@ class Eskf(Estimator):
         return fa, fm, float(np.sqrt(1.0 - s.dip_s**2)), float(-s.dip_s)
 
     def _accel_lowpass(self, s, a, dt: float):
-        """``accel_lowpass`` on the record's low-pass state; the filtered reading (body)."""
+        """``accel_lowpass`` on the record's low-pass state; the filtered reading (body);
+        ``dt``: the time since the accelerometer's previous sample."""
         tau = self.params.accel_lowpass_tau
         w = min(1.0, dt / tau) if s.acc_lp_started else 1.0
         a, s.acc_lp = accel_lowpass(s.q, a, s.acc_lp if s.acc_lp_started else None, w)
@@ -461,11 +497,18 @@ class Eskf(Estimator):
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
         if self.state is None:
-            n_init = max(1, int(np.searchsorted(rec.t, rec.t[0] + p.init_time, side="right")))
-            self._init_state(rec.accel[:n_init], mag_T[:n_init])
+            t0 = rec.t[0] + p.init_time
+            n_acc = max(1, int(np.searchsorted(rec.times("accel"), t0, side="right")))
+            n_mag = max(1, int(np.searchsorted(rec.times("mag"), t0, side="right")))
+            n = min(n_acc, n_mag)  # the first samples of each (pairs for the TRIAD)
+            self._init_state(rec.accel[:n], mag_T[:n])
+        # each sensor at its own rate: a correction needs a new accelerometer and a new
+        # magnetometer sample in the same row (the model and its gates use both); other
+        # rows only predict
+        mag_base = rec.on_time_base("mag") * MAG_UNITS_TO_TESLA[rec.mag_unit]
         inputs = kern.Inputs(np.ascontiguousarray(rec.gyro, float),
-                             np.ascontiguousarray(rec.accel, float),
-                             np.ascontiguousarray(mag_T / self.b0_mag), dt)
+                             np.ascontiguousarray(rec.on_time_base("accel"), float),
+                             np.ascontiguousarray(mag_base / self.b0_mag), dt)
         out = kern.new_outputs(len(rec))
         kern.run_batch(inputs, self.state, kern.coefficients(p), out)
         self.t_last = float(rec.t[-1])

@@ -127,6 +127,7 @@ STATE = np.dtype([
     ("dip_count", np.float64),        # its weight, samples
     ("acc_lp", np.float64, (3,)),     # low-passed accelerometer, navigation frame, m/s²
     ("acc_lp_started", np.bool_),     # acc_lp holds a value
+    ("since_acc_s", np.float64),      # s since the accelerometer's previous sample
 ], align=True)
 
 
@@ -179,13 +180,20 @@ class Work(NamedTuple):
     D1: np.ndarray  #: (6, 3) attitude columns of D (first r rows)
     Rd: np.ndarray  #: (6,) diagonal of R (first r entries)
     dx: np.ndarray  #: (6,) error estimate [δe; δb]
+    PDt: np.ndarray  #: (6, 6) scratch of the one-sensor correction (``gain``, ``joseph``)
+    S: np.ndarray    #: (6, 6)
+    K: np.ndarray    #: (6, 6)
+    L: np.ndarray    #: (6, 3)
+    M: np.ndarray    #: (6, 6)
+    G: np.ndarray    #: (6, 6)
 
 
 @njit(**_JIT)
 def workspace():
     """A ``Work`` of fresh scratch arrays."""
     return Work(np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(6),
-                np.empty((6, 3)), np.empty(6), np.empty(6))
+                np.empty((6, 3)), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty((6, 6)),
+                np.empty((6, 6)), np.empty((6, 3)), np.empty((6, 6)), np.empty((6, 6)))
 
 
 # ---------------------------------------------------------------- phase 1: gyro prediction
@@ -271,7 +279,8 @@ def accel_lowpass(s, c, ax, ay, az, dt):
     """Low-pass the accelerometer in the computed navigation frame; returns it in body.
 
     ``lp ← lp + w (Ĉ_nb a - lp)``, ``w = min(1, dt/acc_lp_tau)`` (``w = 1`` when it
-    starts), returns ``Ĉ_bn lp``: gravity is constant in the navigation frame while a
+    starts; ``dt`` the time since the accelerometer's previous sample), returns
+    ``Ĉ_bn lp``: gravity is constant in the navigation frame while a
     linear acceleration averages out there (the idea of VQF's inertial-frame low-pass,
     Laidig & Seel, Inf. Fusion 2023), so the filtered reading is the better gravity
     measurement.
@@ -462,42 +471,103 @@ def correct(s, mode, y, D1, Rd, dx):
     inject(s.q, s.bias, dx)
 
 
+_gain_loops = njit(inline="always", **_JIT)(gain)
+_joseph_loops = njit(inline="always", **_JIT)(joseph)
+
+
 # ---------------------------------------------------------------- step and batch
+@njit(inline="always", **_JIT)
+def correct_rows(s, r, y, D1, Rd, w):
+    """Kalman correction with the first ``r`` rows of ``y``, ``D1``, ``Rd`` (any ``r``: the
+    loop forms of ``gain`` and ``joseph``, compiled), P mirrored, then ``inject``."""
+    _gain_loops(s.P, D1, Rd, r, w.PDt, w.S, w.K)
+    _joseph_loops(s.P, D1, Rd, y, w.K, r, w.L, w.M, w.G, w.dx)
+    for i in range(6):
+        for j in range(i + 1, 6):
+            s.P[j, i] = s.P[i, j]
+    inject(s.q, s.bias, w.dx)
+
+
+@njit(inline="always", **_JIT)
+def one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w):
+    """The correction by the one sensor that has a new sample in this row (each sensor
+    at its own rate): the accelerometer's or the magnetometer's rows of the measurement.
+
+    Its gate as in ``reference_and_gates``; for the magnetometer alone the field's
+    vertical is read through the attitude estimate (``(Ĉ_nb m)_z / |m|`` in place of
+    ``a·m / (g |m|)``; no accelerometer value is reused), and the inclination estimate
+    does not move. Returns the number of rows used (r6: 3 and 3; r3: 2 and 1)."""
+    q = s.q
+    dip = s.dip_s
+    mag_h, mag_z = math.sqrt(1.0 - dip * dip), -dip
+    if new_a:
+        fa, fm = gate_factor(abs(na - c.gravity), c.gate_acc), 1.0
+        if c.acc_lp_tau > 0.0:
+            ax, ay, az = accel_lowpass(s, c, ax, ay, az, s.since_acc_s)
+        mx, my, mz = 0.0, 0.0, 0.0
+    else:
+        _, _, vz = rotate(q[0], q[1], q[2], q[3], mx, my, mz)
+        fa, fm = 1.0, gate_factor(max(abs(nm - 1.0), abs(vz / nm - dip)), c.gate_mag)
+        ax, ay, az = 0.0, 0.0, 0.0
+    if mode == MODE_R6:
+        measure_r6(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
+        first, r = (0, 3) if new_a else (3, 3)
+    else:
+        measure_r3(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
+        first, r = (0, 2) if new_a else (2, 1)
+    for i in range(r):
+        w.y[i] = w.y[first + i]
+        w.Rd[i] = w.Rd[first + i]
+        for j in range(3):
+            w.D1[i, j] = w.D1[first + i, j]
+    return r
+
+
 @njit(inline="always", **_JIT)
 def step(s, c, mode, inputs, k, w):
     """Sample ``k`` of ``inputs`` on the record ``s`` (``w``: a ``Work``; ``mode`` is
-    ``c.mode``, a constant in each of ``run_batch``'s loops). Returns whether the
-    correction was skipped (an accelerometer or magnetometer dropout: a zero vector);
-    else ``w.y`` holds the measurement."""
+    ``c.mode``, a constant in each of ``run_batch``'s loops). Returns how many
+    measurement rows corrected the state: 0 when neither sensor has a usable new sample
+    (a zero vector, or NaN: no sample in this row), r when both do, fewer when only one
+    does (``one_sensor``); ``w.y`` holds those rows."""
     dt = inputs.dt[k]
     predict(s, c, inputs.gyro[k, 0], inputs.gyro[k, 1], inputs.gyro[k, 2], dt, w.A, w.T, w.U)
     if mode == MODE_PREDICT_ONLY:
-        return False
+        return 0
     ax, ay, az = inputs.accel[k, 0], inputs.accel[k, 1], inputs.accel[k, 2]
     mx, my, mz = inputs.mag[k, 0], inputs.mag[k, 1], inputs.mag[k, 2]
     na = math.sqrt(ax * ax + ay * ay + az * az)
     nm = math.sqrt(mx * mx + my * my + mz * mz)
-    if not (na > 0.0 and nm > 0.0):
-        return True
+    s.since_acc_s += dt
+    new_a, new_m = na > 0.0, nm > 0.0  # False for a zero vector and for NaN (no sample)
+    if not (new_a and new_m):
+        if not (new_a or new_m):
+            return 0
+        r = one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w)
+        if new_a:
+            s.since_acc_s = 0.0
+        correct_rows(s, r, w.y, w.D1, w.Rd, w)
+        return r
     fa, fm, mag_h, mag_z = reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt)
     if c.acc_lp_tau > 0.0:
-        ax, ay, az = accel_lowpass(s, c, ax, ay, az, dt)
+        ax, ay, az = accel_lowpass(s, c, ax, ay, az, s.since_acc_s)
+    s.since_acc_s = 0.0
     if mode == MODE_R6:
         measure_r6(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
     else:
         measure_r3(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
     correct(s, mode, w.y, w.D1, w.Rd, w.dx)
-    return False
+    return 6 if mode == MODE_R6 else 3
 
 
 @njit(inline="always", **_JIT)
 def _loop(inputs, s, c, outputs, w, mode):
     """The loop over samples for one ``mode`` (a constant: its branches fold away)."""
-    r = 6 if mode == MODE_R6 else 3
+    r_full = 6 if mode == MODE_R6 else 3
     for k in range(inputs.dt.shape[0]):
-        skipped = step(s, c, mode, inputs, k, w)
-        outputs.skipped[k] = skipped
-        if mode != MODE_PREDICT_ONLY and not skipped:
+        r = step(s, c, mode, inputs, k, w)
+        outputs.skipped[k] = mode != MODE_PREDICT_ONLY and r < r_full
+        if r == r_full:
             for j in range(r):
                 outputs.innovation[k, j] = w.y[j]
         for j in range(4):
