@@ -203,3 +203,21 @@ def test_a_filter_refuses_a_recording_in_another_reference_frame(capsys):
         with pytest.raises(InputError, match="estimates against ENU") as err:
             registry.create(name).run(ned)
         assert err.value.field == "frames.reference"
+
+
+def test_estimate_compare_onboard_json_contract(tmp_path, capsys):
+    """``--compare onboard``: BROAD's metric against the device's own estimate (PX4's), its
+    heading reference matched, on a real PX4 log whose magnetometer runs at 50 Hz."""
+    log = DATA / "logs" / "px4" / "sample_log_small_imu.ulg"
+    plot = tmp_path / "px4.png"
+    assert main(["estimate", log, "--compare", "onboard", "--plot", plot, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    onboard = out["onboard"]
+    assert set(onboard) >= {"total_deg", "heading_deg", "inclination_deg", "samples",
+                            "heading_reference"}
+    assert onboard["samples"] > 0.9 * out["samples"]
+    assert onboard["inclination_deg"] < 1.0  # both level the vehicle from gravity
+    assert "heading offset" in onboard["heading_reference"]
+    assert plot.stat().st_size > 10_000
+    assert main(["estimate", DATA / "broad_01_excerpt.csv", "--compare", "onboard"]) == 2
+    assert "device's own" in capsys.readouterr().err

@@ -149,6 +149,11 @@ def cmd_estimate(args) -> int:
                "params": est.params}
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
+    matched = None
+    if args.compare == "onboard":
+        from gnomon.metrics import compare_onboard
+
+        summary["onboard"], matched = compare_onboard(rec, est.q)
     if args.out:
         from gnomon.io.estimate import write_estimate
 
@@ -157,7 +162,8 @@ def cmd_estimate(args) -> int:
     if args.plot:
         from gnomon.report.figures import plot_estimate
 
-        plot_estimate(rec, est, args.plot)
+        plot_estimate(rec, est, args.plot,
+                      compare=None if matched is None else ("device's own", matched))
         summary["plot"] = str(args.plot)
     if args.json:
         print_json(summary)
@@ -171,6 +177,11 @@ def cmd_estimate(args) -> int:
               f"yaw {e['yaw_deg']:.3f} deg; max {e['max_deg']:.3f} deg")
     else:
         print("  (no truth in the input: no error summary)")
+    if "onboard" in summary:
+        o = summary["onboard"]
+        print(f"  vs the device's own estimate over {o['samples']} samples: total "
+              f"{o['total_deg']:.3f} deg, heading {o['heading_deg']:.3f} deg, inclination "
+              f"{o['inclination_deg']:.3f} deg ({o['heading_reference']})")
     for key in ("out", "plot"):
         if key in summary:
             print(f"  wrote {summary[key]}")
@@ -362,6 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_log_options(s)
     s.add_argument("--out", help="write the estimate (.csv or .h5)")
     s.add_argument("--plot", help="write a figure (attitude, errors, bias, flags), e.g. out.png")
+    s.add_argument("--compare", choices=["onboard"],
+                   help="onboard: the RMS difference from the device's own attitude estimate "
+                        "(PX4, ArduPilot, phone OS, Xsens), heading references matched")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
     g = s.add_argument_group("CSV options")
     g.add_argument("--columns", help="column map NAME=COLUMN,... (names: t, gyr_x, ..., mag_z)")

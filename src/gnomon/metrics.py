@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from gnomon.recording import Recording
 
 __all__ = ["error_angle_rad", "axis_errors_rad", "broad_errors_rad", "rms", "rms_deg", "score",
-           "score_run", "score_broad", "heading_offset_rad", "compare"]
+           "score_run", "score_broad", "heading_offset_rad", "compare", "compare_onboard"]
 
 _BROAD_KEYS = ("total", "heading", "inclination")
 
@@ -229,3 +229,31 @@ def compare(q_ref, q_est, mask=None, match_heading: bool = True) -> dict:
     out.update(samples=int(m.sum()), heading_offset_deg=float(np.degrees(psi)),
                heading_matched=bool(match_heading))
     return out
+
+
+def compare_onboard(rec: Recording, q_est) -> tuple[dict, np.ndarray]:
+    """``compare`` of ``q_est`` (N, 4) with the device's own estimate ``rec.q_onboard``,
+    over the rows where both exist; returns the summary (``compare``'s keys plus
+    ``heading_reference``, a sentence saying how the heading references were matched) and
+    the device's estimate with the offset removed (N, 4; NaN where it has none).
+
+    The two refer heading to different norths in general (PX4's EKF2 and a phone OS to
+    true north through a declination model, a filter on the raw magnetometer to magnetic
+    north), so the constant heading offset between them is removed first."""
+    if rec.q_onboard is None:
+        raise InputError("the recording holds no attitude estimate of the device's own",
+                         field="q_onboard", file=rec.source or None)
+    from gnomon.rotation import quat_from_rotvec
+
+    out = compare(rec.q_onboard, q_est)
+    if out["samples"] == 0:
+        raise InputError("no sample where both estimates exist", field="q_onboard",
+                         file=rec.source or None)
+    psi = np.radians(out["heading_offset_deg"])
+    out["heading_reference"] = (f"constant heading offset {out['heading_offset_deg']:+.2f} deg "
+                                f"removed from the device's estimate (its north vs the "
+                                f"filter's magnetic north)")
+    matched = np.full_like(rec.q_onboard, np.nan)
+    ok = np.all(np.isfinite(rec.q_onboard), axis=1)
+    matched[ok] = quat_mul(quat_from_rotvec(np.array([0.0, 0.0, psi])), rec.q_onboard[ok])
+    return out, matched

@@ -16,9 +16,13 @@ def _plt():
     return plt
 
 
-def plot_estimate(rec, est, path) -> Path:
-    """Attitude (Euler angles), errors vs truth (when present), bias estimate and flags."""
-    from gnomon.metrics import axis_errors_rad
+def plot_estimate(rec, est, path, compare=None) -> Path:
+    """Attitude (Euler angles), errors vs truth (when present), bias estimate and flags.
+
+    ``compare``: ``(label, q_ref)``, another estimate (N, 4) on ``rec.t`` (e.g. the device's
+    own, its heading matched) drawn dashed beside the attitude, with BROAD's heading and
+    inclination difference in a panel of their own."""
+    from gnomon.metrics import axis_errors_rad, broad_errors_rad
     from gnomon.rotation import euler_from_quat
 
     plt = _plt()
@@ -26,7 +30,7 @@ def plot_estimate(rec, est, path) -> Path:
     bias = est.signals.get("bias_rad_s")
     flags = {k: v for k, v in est.signals.items()
              if isinstance(v, np.ndarray) and v.dtype == bool and v.ndim == 1}
-    rows = 1 + has_truth + (bias is not None) + bool(flags)
+    rows = 1 + has_truth + (compare is not None) + (bias is not None) + bool(flags)
     fig, axes = plt.subplots(rows, 1, figsize=(10, 2.6 * rows), sharex=True, squeeze=False)
     axes = axes[:, 0]
     t = rec.t - rec.t[0]
@@ -40,11 +44,26 @@ def plot_estimate(rec, est, path) -> Path:
         rpy_t[ok] = np.degrees(euler_from_quat(rec.q_true[ok]))
         for i in range(3):
             ax.plot(t, rpy_t[:, i], "k--", lw=0.6, label="truth" if i == 0 else None)
+    if compare is not None:
+        label, q_ref = compare
+        ok = np.all(np.isfinite(q_ref), axis=1)
+        rpy_c = np.full((len(rec), 3), np.nan)
+        rpy_c[ok] = np.degrees(np.unwrap(euler_from_quat(q_ref[ok]), axis=0))
+        for i in range(3):
+            ax.plot(t, rpy_c[:, i], ":", color="0.3", lw=0.9, label=label if i == 0 else None)
     ax.set_ylabel("Euler angle (deg)")
     ax.set_title(f"{est.estimator} on {rec.source or 'recording'} "
                  f"(reference frame {est.frames.get('reference', '?')})")
     ax.legend(fontsize=7, ncol=4)
     k = 1
+    if compare is not None:
+        diff = broad_errors_rad(compare[1], est.q)
+        ax = axes[k]
+        for key in ("heading", "inclination"):
+            ax.plot(t, np.degrees(diff[key]), lw=0.8, label=f"{key} difference")
+        ax.set_ylabel(f"vs {compare[0]} (deg)")
+        ax.legend(fontsize=7, ncol=2)
+        k += 1
     if has_truth:
         err = np.degrees(axis_errors_rad(rec.q_true, est.q))
         ax = axes[k]
