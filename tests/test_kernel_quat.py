@@ -136,3 +136,26 @@ def test_linalg_toolbox_agrees_with_numpy():
         kl.symmetrise(S)
         np.testing.assert_allclose(S, 0.5 * (P + P.T), atol=0)
     assert kl.clip(3.0, 2.0) == 2.0 and kl.clip(-3.0, 2.0) == -2.0 and kl.clip(1.5, 2.0) == 1.5
+
+
+def test_quadratic_rotation_and_its_jacobian_hold_off_the_unit_sphere():
+    from gnomon.kernels import quat as kq
+
+    rng = np.random.default_rng(6)
+    for _ in range(100):
+        q = rng.normal(size=4)  # any length: the quadratic form is |q|² times the rotation
+        v = rng.normal(size=3)
+        n2 = q @ q
+        np.testing.assert_allclose(kq.rotate_quadratic(*q, *v), n2 * _scipy(q).apply(v),
+                                   rtol=1e-13, atol=1e-13 * n2)
+        u = q / np.sqrt(n2)
+        np.testing.assert_allclose(kq.rotate_quadratic(*u, *v), kq.rotate(*u, *v), atol=1e-14)
+        A = np.empty((3, 4))
+        kq.rotate_quadratic_jac(*q, *v, A)
+        eps = 1e-6
+        for k in range(4):
+            d = np.zeros(4)
+            d[k] = eps
+            fd = (np.array(kq.rotate_quadratic(*(q + d), *v))
+                  - np.array(kq.rotate_quadratic(*(q - d), *v))) / (2 * eps)
+            np.testing.assert_allclose(A[:, k], fd, atol=1e-8)
