@@ -222,21 +222,18 @@ def rotate_quadratic_jac(w, x, y, z, vx, vy, vz, A):
 
         ∂/∂w = 2 w v + 2 u × v,   ∂/∂u = 2 (u·v) I − 2 v uᵀ + 2 u vᵀ − 2 w [v×]
     """
-    v = (vx, vy, vz)
-    u = (x, y, z)
-    uv = x * vx + y * vy + z * vz
-    A[0, 0] = 2.0 * w * vx + 2.0 * (y * vz - z * vy)
-    A[1, 0] = 2.0 * w * vy + 2.0 * (z * vx - x * vz)
-    A[2, 0] = 2.0 * w * vz + 2.0 * (x * vy - y * vx)
-    for a in range(3):
-        for c in range(3):
-            val = -2.0 * v[a] * u[c] + 2.0 * u[a] * v[c]
-            if a == c:
-                val += 2.0 * uv
-            A[a, 1 + c] = val
-    A[0, 2] += 2.0 * w * vz
-    A[0, 3] -= 2.0 * w * vy
-    A[1, 1] -= 2.0 * w * vz
-    A[1, 3] += 2.0 * w * vx
-    A[2, 1] += 2.0 * w * vy
-    A[2, 2] -= 2.0 * w * vx
+    uv2 = 2.0 * (x * vx + y * vy + z * vz)
+    w2 = 2.0 * w
+    A[0, 0] = w2 * vx + 2.0 * (y * vz - z * vy)
+    A[1, 0] = w2 * vy + 2.0 * (z * vx - x * vz)
+    A[2, 0] = w2 * vz + 2.0 * (x * vy - y * vx)
+    # 2 (u·v) I − 2 v uᵀ + 2 u vᵀ (the diagonal of the last two cancels), then − 2 w [v×]
+    A[0, 1] = (-2.0 * vx * x + 2.0 * x * vx) + uv2
+    A[0, 2] = (-2.0 * vx * y + 2.0 * x * vy) + w2 * vz
+    A[0, 3] = (-2.0 * vx * z + 2.0 * x * vz) - w2 * vy
+    A[1, 1] = (-2.0 * vy * x + 2.0 * y * vx) - w2 * vz
+    A[1, 2] = (-2.0 * vy * y + 2.0 * y * vy) + uv2
+    A[1, 3] = (-2.0 * vy * z + 2.0 * y * vz) + w2 * vx
+    A[2, 1] = (-2.0 * vz * x + 2.0 * z * vx) + w2 * vy
+    A[2, 2] = (-2.0 * vz * y + 2.0 * z * vy) - w2 * vx
+    A[2, 3] = (-2.0 * vz * z + 2.0 * z * vz) + uv2
