@@ -172,3 +172,11 @@ def test_sun_sensor_noise_fov_and_eclipse():
     err = np.degrees(np.arccos(np.clip(np.sum(out[valid] * s[valid], 1), -1, 1)))
     # angle of a 2-D Gaussian error with sigma per axis: Rayleigh, RMS = sqrt(2) sigma
     assert np.sqrt(np.mean(err**2)) == pytest.approx(np.sqrt(2) * 0.2, rel=0.03)
+
+
+def test_control_mode_names_match_the_kernel():
+    from gnomon.dynamics import CONTROL_MODES
+    from gnomon.kernels import dynamics as K
+
+    assert CONTROL_MODES == {"none": 0, "bdot": K.MODE_BDOT, "magnetic_pd": K.MODE_MAGNETIC_PD,
+                             "bdot_then_pd": K.MODE_BDOT_THEN_PD, "wheel_pd": K.MODE_WHEEL_PD}

@@ -167,3 +167,26 @@ def test_skew_into_writes_a_scaled_cross_product_block():
     np.testing.assert_allclose(out[3:] @ b, 2.0 * np.cross(v, b), atol=1e-15)
     np.testing.assert_array_equal(out[3:], 2.0 * kl.skew_arr(v))
     assert np.all(np.isnan(out[:3]))  # the other rows are left alone
+
+
+def test_quadratic_rotation_and_its_jacobian_hold_off_the_unit_sphere():
+    from gnomon.kernels import quat as kq
+
+    rng = np.random.default_rng(6)
+    for _ in range(100):
+        q = rng.normal(size=4)  # any length: the quadratic form is |q|² times the rotation
+        v = rng.normal(size=3)
+        n2 = q @ q
+        np.testing.assert_allclose(kq.rotate_quadratic(*q, *v), n2 * _scipy(q).apply(v),
+                                   rtol=1e-13, atol=1e-13 * n2)
+        u = q / np.sqrt(n2)
+        np.testing.assert_allclose(kq.rotate_quadratic(*u, *v), kq.rotate(*u, *v), atol=1e-14)
+        A = np.empty((3, 4))
+        kq.rotate_quadratic_jac(*q, *v, A)
+        eps = 1e-6
+        for k in range(4):
+            d = np.zeros(4)
+            d[k] = eps
+            fd = (np.array(kq.rotate_quadratic(*(q + d), *v))
+                  - np.array(kq.rotate_quadratic(*(q - d), *v))) / (2 * eps)
+            np.testing.assert_allclose(A[:, k], fd, atol=1e-8)

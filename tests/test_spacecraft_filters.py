@@ -64,44 +64,70 @@ def _messy(rec):
 
 
 def _reference_run(f, rec, pairs, q0, q_mes=None, ok=None):
-    f.reset()
-    f.q = np.array(q0, float)
+    """The readable ``step`` of a fresh ``f`` over the kernel's inputs, sample by sample."""
+    f.reset(q0)
     out = np.empty((len(rec), 4))
     for i in range(len(rec)):
+        common = (pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i])
         if isinstance(f, QuaternionCF):
-            out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i], q_mes[i],
-                              ok[i], pairs["mag_b"][i], pairs["mag_o"][i])
-        elif isinstance(f, MagGyroMEKF):
-            out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i],
-                              pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
-                              pairs["sec_o"][i], pairs["sec_valid"][i], pairs["substituted"][i])
+            out[i] = f.step(*common, q_mes[i], ok[i], pairs["mag_b"][i], pairs["mag_o"][i])
         else:
-            out[i] = f.update(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i],
-                              pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
-                              pairs["sec_o"][i], pairs["sec_valid"][i])
+            second = (pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
+                      pairs["sec_o"][i], pairs["sec_valid"][i])
+            if isinstance(f, MagGyroMEKF):
+                out[i] = f.step(*common, *second, pairs["substituted"][i])
+            else:
+                out[i] = f.step(*common, *second)
+    return out
+
+
+def _streamed(f, rec, q0=None, q_mes=None, ok=None):
+    """The streaming ``update`` of ``f`` (fresh if ``q0`` is given) over the raw samples of
+    ``rec`` (None where the sun is invalid or a measured quaternion is unusable)."""
+    if q0 is not None:
+        f.reset(q0)
+    dt = np.diff(rec.t, prepend=rec.t[0])
+    out = np.empty((len(rec), 4))
+    for i in range(len(rec)):
+        kw = dict(mag_b=rec.mag[i], mag_ref_o=rec.extra["b_o_nT"][i],
+                  w_io_o_rad_s=rec.extra["w_io_o"][i])
+        if isinstance(f, QuaternionCF):
+            kw["q_mes_ob"] = q_mes[i] if ok[i] else None
+        elif rec.sun_valid[i]:
+            kw.update(sun_b=rec.sun[i], sun_ref_o=rec.extra["s_o"][i])
+        out[i] = f.update(dt[i], rec.gyro[i], **kw)
     return out
 
 
 @pytest.mark.parametrize("substitute", ["delayed", "delayed-gyro", "none"])
 def test_kernels_match_readable_references(substitute):
+    """Kernel (``run``) against the readable ``step`` on the kernel's inputs, sample by sample,
+    and against the streaming ``update`` on the raw samples (which makes the sun substitute
+    itself from the filter's tail)."""
     rec = _messy(spacecraft(n=700, bias=(1e-4, -2e-4, 5e-5), mag_noise=200.0))
     q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([3.0, -2.0, 4.0])))
     pairs = vector_pairs(rec, substitute, delay_samples=100)
+    # streamed, the delayed-gyro pair integrates the gyro over the tail only: rounding
+    streamed_tol = 1e-10 if substitute == "delayed-gyro" else 1e-12
     common = dict(sun_substitute=substitute, delay_samples=100, max_dt_s=10.0)
-    ecf = ExplicitSpacecraftCF(kp_rad_s=0.2, ki_per_s=1e-3, kp_single_rad_s=0.05,
-                               ki_single_per_s=1e-4, **common)
+    ecf = ExplicitSpacecraftCF(kp_rad_s=0.2, ki_rad_s2=1e-3, kp_single_rad_s=0.05,
+                               ki_single_rad_s2=1e-4, **common)
     est = ecf.run(rec, q0=q0)
     ref = _reference_run(ExplicitSpacecraftCF(ecf.params), rec, pairs, q0)
     assert np.max(np.abs(est.q - ref)) < 1e-12
+    streamed = _streamed(ExplicitSpacecraftCF(ecf.params), rec, q0)
+    assert np.max(np.abs(est.q - streamed)) < streamed_tol
     assert np.all(np.isfinite(est.q))
     assert est.signals["gap"][500] and est.signals["mag_unusable"][400]
     assert est.signals["mag_unusable"][450]
-    qcf = QuaternionCF(kp_rad_s=0.3, ki_per_s=1e-3, kp_single_rad_s=0.05, ki_single_per_s=1e-4,
-                       **common)
+    qcf = QuaternionCF(kp_rad_s=0.3, ki_rad_s2=1e-3, kp_single_rad_s=0.05,
+                       ki_single_rad_s2=1e-4, **common)
     est = qcf.run(rec, q0=q0)
-    ref = _reference_run(QuaternionCF(qcf.params), rec, pairs, q0, est.signals["q_mes"],
-                         est.signals["q_mes_ok"])
+    q_mes, ok = est.signals["q_mes"], est.signals["q_mes_ok"]
+    ref = _reference_run(QuaternionCF(qcf.params), rec, pairs, q0, q_mes, ok)
     assert np.max(np.abs(est.q - ref)) < 1e-12
+    streamed = _streamed(QuaternionCF(qcf.params), rec, q0, q_mes, ok)
+    assert np.max(np.abs(est.q - streamed)) < 1e-12
     assert np.all(np.isfinite(est.q))
     if substitute == "none":
         assert est.signals["mes_unusable"][220] and est.signals["mes_unusable"][300]
@@ -111,15 +137,77 @@ def test_kernels_match_readable_references(substitute):
     pairs_m = vector_pairs(rec, mekf_sub, 100)
     ref = _reference_run(MagGyroMEKF(mekf.params), rec, pairs_m, q0)
     assert np.max(np.abs(est.q - ref)) < 1e-10
+    assert np.max(np.abs(est.q - _streamed(MagGyroMEKF(mekf.params), rec, q0))) < 1e-10
     assert np.all(np.isfinite(est.q))
+
+
+def test_readable_step_equals_the_kernel_sample_by_sample_in_every_signal():
+    """Attitude, bias and flags of the readable twins after every sample; the covariance."""
+    rec = _messy(spacecraft(n=600, bias=(1e-4, -2e-4, 5e-5), mag_noise=200.0))
+    q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([3.0, -2.0, 4.0])))
+    names = ("mag_unusable", "sun_unusable", "gap", "coast")
+    for f in (ExplicitSpacecraftCF(delay_samples=50, kp_rad_s=0.2, ki_rad_s2=1e-3),
+              MagGyroMEKF(delay_samples=50, sigma_mag_rad=0.01)):
+        est = f.run(rec, q0=q0)
+        pairs = vector_pairs(rec, "delayed", delay_samples=50)
+        g = type(f)(f.params)
+        g.reset(q0)
+        for i in range(len(rec)):
+            row = [pairs[k][i] for k in ("dt", "gyro", "w_io_o", "mag_b", "mag_o", "sec_b",
+                                         "sec_o", "sec_valid")]
+            if isinstance(g, MagGyroMEKF):
+                row.append(pairs["substituted"][i])
+            q = g.step(*row)
+            assert np.max(np.abs(q - est.q[i])) < 1e-10, i
+            assert np.max(np.abs(g.bias - est.signals["bias_rad_s"][i])) < 1e-12, i
+            assert [g.flags[k] for k in names] == [bool(est.signals[k][i]) for k in names], i
+        if isinstance(g, MagGyroMEKF):
+            np.testing.assert_allclose(g.P, f.P, rtol=1e-8, atol=1e-16)
+
+
+def test_renamed_integral_gains_raise_naming_the_new_name():
+    for name in ("ecf-spacecraft", "qcf"):
+        cls = registry.get(name)
+        for old, new in (("ki_per_s", "ki_rad_s2"), ("ki_single_per_s", "ki_single_rad_s2")):
+            with pytest.raises(InputError, match=new):
+                registry.create(name, {old: 1e-3})
+            assert cls.Params.from_dict({new: 1e-3}).as_dict()[new] == 1e-3
+            unit = {d["name"]: d["unit"] for d in cls.Params.describe()}[new]
+            assert unit == "rad/s^2"
+
+
+@pytest.mark.parametrize("name", ["ecf-spacecraft", "qcf", "mekf-delayed", "ekf-spacecraft",
+                                  "mekf-spacecraft"])
+def test_spacecraft_filters_say_kind_frame_and_paper(name):
+    cls = registry.get(name)
+    assert cls.kind == "spacecraft" and cls.reference_frame == "o"
+    assert cls.paper.startswith("seed 00")
+    rec = dataclasses.replace(spacecraft(n=20), frames={"reference": "ENU", "body": "b"})
+    with pytest.raises(InputError, match="frames.reference"):
+        registry.create(name).run(rec)
+
+
+def test_a_run_continues_a_streamed_state():
+    """``update`` and ``run`` share one state: streaming the first part, then running the
+    rest, equals one run (the tail of the delayed substitute included)."""
+    rec = _messy(spacecraft(n=700, bias=(1e-4, -2e-4, 5e-5), mag_noise=200.0))
+    q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([3.0, -2.0, 4.0])))
+    for cls in (ExplicitSpacecraftCF, MagGyroMEKF):
+        f = cls(delay_samples=100)
+        whole = f.run(rec, q0=q0).q
+        g = cls(f.params)
+        head = _streamed(g, rec.slice(0, 350), q0)
+        g.t_last = float(rec.t[349])
+        tail = g.run(rec.slice(350, len(rec))).q
+        np.testing.assert_allclose(np.vstack([head, tail]), whole, rtol=0, atol=1e-10)
 
 
 @pytest.mark.parametrize("name", ["ecf-spacecraft", "qcf", "mekf-delayed"])
 def test_noiseless_convergence_and_bias_estimation(name):
     bias = np.radians([0.02, -0.015, 0.01])
     rec = spacecraft(n=6000, bias=bias)
-    params = {"ecf-spacecraft": {"kp_rad_s": 0.1, "ki_per_s": 1e-3},
-              "qcf": {"kp_rad_s": 0.2, "ki_per_s": 2e-3},
+    params = {"ecf-spacecraft": {"kp_rad_s": 0.1, "ki_rad_s2": 1e-3},
+              "qcf": {"kp_rad_s": 0.2, "ki_rad_s2": 2e-3},
               "mekf-delayed": {"sigma_mag_rad": 0.01, "bias_rw_rad_s_rt_s": 1e-6}}[name]
     f = registry.create(name, params)
     q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([10.0, -8.0, 12.0])))
@@ -146,7 +234,7 @@ def _one_correction(kind, theta, kp):
                               gyro=np.zeros((2, 3)))
     q0 = quat_mul(rec.q_true[0], quat_from_rotvec(theta))
     cls = {"ecf": ExplicitSpacecraftCF, "qcf": QuaternionCF}[kind]
-    est = cls(kp_rad_s=kp, ki_per_s=0.0).run(rec, q0=q0)
+    est = cls(kp_rad_s=kp, ki_rad_s2=0.0).run(rec, q0=q0)
     return rotvec_from_quat(quat_mul(quat_conj(rec.q_true[1]), est.q[1]))
 
 
@@ -181,12 +269,12 @@ def test_whole_outage_without_sun_never_nan_and_flags():
     rec = spacecraft(n=1500, bias=np.radians([0.02, 0.02, 0.02]), mag_noise=100.0)
     rec = dataclasses.replace(rec, sun=np.full((len(rec), 3), np.nan),
                               sun_valid=np.zeros(len(rec), bool))
-    for f in (QuaternionCF(kp_single_rad_s=0.0, ki_single_per_s=0.0),
+    for f in (QuaternionCF(kp_single_rad_s=0.0, ki_single_rad_s2=0.0),
               ExplicitSpacecraftCF(sun_substitute="none"), MagGyroMEKF()):
         est = f.run(rec)
         assert np.all(np.isfinite(est.q)) and np.all(np.isfinite(est.signals["bias_rad_s"]))
     # the paper's substitute starts after M samples; before, the QCF coasts and says so
-    est = QuaternionCF(kp_single_rad_s=0.0, ki_single_per_s=0.0, delay_samples=500).run(rec)
+    est = QuaternionCF(kp_single_rad_s=0.0, ki_single_rad_s2=0.0, delay_samples=500).run(rec)
     assert est.signals["coast"][1:500].all() and not est.signals["coast"][600:].any()
     assert est.signals["sun_substituted"][500:].all()
 

@@ -99,13 +99,11 @@ def integrate_attitude(q0_ib, w0_ib_b, h0_b, inertia, dt, r_half_i, b_half_i_T, 
                          field="controller.mode")
     J = check_inertia(inertia)
     n = len(q_io)
+    c = K.coefficients(J, dt, CONTROL_MODES[mode], k_bdot, kp, kd, switch_rate, k_dump,
+                       max_dipole, max_wheel_torque, max_wheel_momentum, residual_dipole,
+                       MU_EARTH, gravity_gradient)
     fn = K.rk4_attitude if compiled else K.rk4_attitude.py_func
-    gains = np.array([k_bdot, kp, kd, switch_rate, k_dump], float)
-    out = fn(np.asarray(q0_ib, float), np.asarray(w0_ib_b, float), np.asarray(h0_b, float),
-             J, np.linalg.inv(J), float(dt), n - 1,
-             np.ascontiguousarray(r_half_i, float), np.ascontiguousarray(b_half_i_T, float),
-             np.ascontiguousarray(q_io, float), np.ascontiguousarray(w_io_o, float),
-             CONTROL_MODES[mode], gains, float(max_dipole), float(max_wheel_torque),
-             float(max_wheel_momentum), np.asarray(residual_dipole, float), MU_EARTH,
-             bool(gravity_gradient))
+    out = fn(c, np.asarray(q0_ib, float), np.asarray(w0_ib_b, float), np.asarray(h0_b, float),
+             n - 1, np.ascontiguousarray(r_half_i, float), np.ascontiguousarray(b_half_i_T, float),
+             np.ascontiguousarray(q_io, float), np.ascontiguousarray(w_io_o, float))
     return AttitudeHistory(*out)

@@ -33,17 +33,36 @@ Sun-sensor loss (``sun_substitute``), where ``sun_valid`` is false:
   (exact without gyro drift; drifts by the integrated bias, ~10° per axis
   after 500 s of a 0.02°/s drift);
 * ``"none"``: the magnetometer pair alone (with ``kp_single_rad_s``,
-  ``ki_single_per_s``): the magnetometer + gyro filter whose bias estimate
+  ``ki_single_rad_s2``): the magnetometer + gyro filter whose bias estimate
   comes from the turning field direction (observable over the orbit).
 
-Gains switch to ``kp_single_rad_s`` / ``ki_single_per_s`` whenever only one
-pair is usable. Bad input: a zero or non-finite vector makes its pair
-unusable (flag), a sample interval above ``max_dt_s`` or a non-finite
-interval is a gap (gyro-only propagation, flag), a non-finite gyro sample is
-skipped (flag ``coast``): the estimate never holds a NaN.
+Gains switch to ``kp_single_rad_s`` / ``ki_single_rad_s2`` whenever only one
+pair is usable (``K_I`` is in rad/s² per unit error: it integrates the error into
+a rate; these were named ``ki_per_s`` / ``ki_single_per_s`` before).
 
-``run`` uses the numba kernel ``gnomon.kernels.spacecraft_cf.ecf_batch``;
-``update`` is the readable reference (tested against it).
+Bad input: a zero or non-finite vector makes its pair unusable (flag), a sample
+interval above ``max_dt_s`` or a non-finite interval is a gap (gyro-only
+propagation, flag), a non-finite gyro sample is skipped (flag ``coast``): the
+estimate never holds a NaN.
+
+``run`` uses the numba kernel ``gnomon.kernels.spacecraft_cf.ecf_batch`` (coefficients
+``ecf_coefficients(params)``, state record ``STATE``); ``step`` is its readable twin, phase
+by phase (gyro prediction, vector pairs, PI correction), tested against it sample by
+sample. ``update`` is the streaming form: one raw sample (the sun substitute is made from
+the filter's own tail of past samples, as ``run`` makes it), then ``step``.
+
+Streaming arguments (shared by the seed-000 filters ``ecf-spacecraft``, ``qcf``,
+``mekf-delayed``; ``None`` = no new sample of that input):
+
+* ``dt_s`` (s) since the previous sample (0 at the first: no step);
+* ``gyro_rad_s`` (3,) ``ω_ib_b`` rad/s (None: no propagation over this interval, flagged
+  ``coast``);
+* ``mag_b`` (3,) the measured field in b and ``mag_ref_o`` (3,) the field model in o (any
+  one unit: only directions are used);
+* ``sun_b`` (3,) the sun direction measured in b and ``sun_ref_o`` (3,) the sun model in o
+  (any length; None or non-finite: no sun, e.g. eclipse);
+* ``w_io_o_rad_s`` (3,) rate of the orbital frame (default ``[0, −n, 0]``,
+  ``n = orbital_rate_rad_s``).
 """
 
 from __future__ import annotations
@@ -57,19 +76,23 @@ from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 
-__all__ = ["SpacecraftCFParams", "ExplicitSpacecraftCF", "vector_pairs", "initial_q_ob",
-           "integrate_rates"]
+__all__ = ["SpacecraftCFParams", "ExplicitSpacecraftCF", "VectorPairFilter", "vector_pairs",
+           "pairs_from_arrays", "initial_q_ob", "integrate_rates"]
 
 SUN_SUBSTITUTES = ("delayed", "delayed-gyro", "none")
+#: The integral gains' former names (their unit, rad/s², was not the one the name said).
+KI_RENAMED = {"ki_per_s": "ki_rad_s2", "ki_single_per_s": "ki_single_rad_s2"}
 
 
 @dataclass(frozen=True)
 class SpacecraftCFParams(Params):
+    renamed = KI_RENAMED
+
     kp_rad_s: float = param(0.03, "rad/s", "proportional gain K_P (both pairs usable; "
                              "tuned on seed000)")
-    ki_per_s: float = param(3e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
+    ki_rad_s2: float = param(3e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
     kp_single_rad_s: float = param(0.005, "rad/s", "K_P when only one vector pair is usable")
-    ki_single_per_s: float = param(2e-5, "rad/s^2", "K_I when only one vector pair is usable")
+    ki_single_rad_s2: float = param(2e-5, "rad/s^2", "K_I when only one vector pair is usable")
     k_mag: float = param(1.0, "", "weight of the magnetometer pair")
     k_sun: float = param(1.0, "", "weight of the sun (or substitute) pair")
     sun_substitute: str = param("delayed", "", "when the sun is invalid: delayed | "
@@ -81,7 +104,7 @@ class SpacecraftCFParams(Params):
     max_dt_s: float = param(10.0, "s", "longer sample intervals are gaps: gyro only")
 
     def validate(self):
-        for name in ("kp_rad_s", "ki_per_s", "kp_single_rad_s", "ki_single_per_s", "k_mag",
+        for name in ("kp_rad_s", "ki_rad_s2", "kp_single_rad_s", "ki_single_rad_s2", "k_mag",
                      "k_sun", "orbital_rate_rad_s"):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
         self._require("sun_substitute", self.sun_substitute in SUN_SUBSTITUTES,
@@ -137,27 +160,41 @@ def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples:
     n = len(rec)
     dt = np.zeros(n)
     dt[1:] = np.diff(rec.t)
-    mag_b = np.ascontiguousarray(rec.mag, float)
-    mag_o = np.ascontiguousarray(_field_reference(rec))
-    w_io = _w_io_o(rec, orbital_rate_rad_s)
-    gyro = np.ascontiguousarray(rec.gyro, float)
     if rec.sun is None:
-        sun = np.full((n, 3), np.nan)
-        valid = np.zeros(n, bool)
+        sun, valid = np.full((n, 3), np.nan), np.zeros(n, bool)
     else:
         sun = np.asarray(rec.sun, float)
-        valid = (np.ones(n, bool) if rec.sun_valid is None
-                 else np.asarray(rec.sun_valid, bool)).copy()
-    valid &= np.all(np.isfinite(sun), axis=1)
+        valid = np.ones(n, bool) if rec.sun_valid is None else np.asarray(rec.sun_valid, bool)
     s_o = rec.extra.get("s_o")
     s_o = np.full((n, 3), np.nan) if s_o is None else np.asarray(s_o, float)
+    return pairs_from_arrays(dt, rec.gyro, _w_io_o(rec, orbital_rate_rad_s), rec.mag,
+                             _field_reference(rec), sun, valid, s_o, sun_substitute,
+                             delay_samples, history)
+
+
+def pairs_from_arrays(dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_valid, sun_o,
+                      sun_substitute: str = "delayed", delay_samples: int = 500,
+                      history: dict | None = None) -> dict:
+    """``vector_pairs`` of arrays (N rows; the streaming ``update`` passes one): ``dt`` (N,)
+    s, ``gyro`` (N, 3) rad/s, ``w_io_o`` (N, 3) rad/s, the magnetic pair ``mag_b`` (b),
+    ``mag_o`` (o), the sun pair ``sun_b`` (b), ``sun_o`` (o) and ``sun_valid`` (N,) bool
+    (a non-finite sun row is invalid too)."""
+    n = len(dt)
+    mag_b = np.ascontiguousarray(mag_b, float)
+    mag_o = np.ascontiguousarray(mag_o, float)
+    gyro = np.ascontiguousarray(gyro, float)
+    w_io = np.ascontiguousarray(w_io_o, float)
+    sun = np.asarray(sun_b, float)
+    valid = np.asarray(sun_valid, bool).copy()
+    valid &= np.all(np.isfinite(sun), axis=1)
+    s_o = np.asarray(sun_o, float)
     valid &= np.all(np.isfinite(s_o), axis=1)
     sec_b = np.where(valid[:, None], sun, 0.0)
     sec_o = np.where(valid[:, None], s_o, 0.0)
     sec_valid = valid.copy()
     substituted = np.zeros(n, bool)
     M = int(delay_samples)
-    # the M samples before this recording (from an earlier piece) and this one, end to end
+    # the M samples before these (from an earlier piece) and these, end to end
     h = 0 if history is None else len(history["dt"])
     ext = {"dt": dt, "gyro": gyro, "w_io_o": w_io, "mag_b": mag_b, "mag_o": mag_o}
     if h:
@@ -172,9 +209,13 @@ def vector_pairs(rec: Recording, sun_substitute: str = "delayed", delay_samples:
         if sun_substitute == "delayed-gyro" and idx.size:
             q_b = integrate_rates(ext["dt"], ext["gyro"])  # q_{b(0) b(k)} from the raw gyro
             q_o = integrate_rates(ext["dt"], ext["w_io_o"])  # q_{o(0) o(k)}
-            # body: v_b(n) = R_{b(n) b(n-M)} v_b(n-M); orbital likewise
-            sb = quat_rotate(quat_mul(quat_conj(q_b[idx + h]), q_b[old]), sb)
-            so = quat_rotate(quat_mul(quat_conj(q_o[idx + h]), q_o[old]), so)
+            # body: v_b(n) = R_{b(n) b(n-M)} v_b(n-M); orbital likewise (a non-finite
+            # vector stays so: its pair is unusable)
+            sb, so = sb.copy(), so.copy()
+            ok = np.all(np.isfinite(sb), axis=1) & np.all(np.isfinite(so), axis=1)
+            n_, o_ = idx[ok] + h, old[ok]
+            sb[ok] = quat_rotate(quat_mul(quat_conj(q_b[n_]), q_b[o_]), sb[ok])
+            so[ok] = quat_rotate(quat_mul(quat_conj(q_o[n_]), q_o[o_]), so[ok])
         sec_b[idx] = sb
         sec_o[idx] = so
         sec_valid[idx] = True
@@ -216,36 +257,85 @@ def _unit(v):
     return (v / n, True) if 0.0 < n < 1e300 else (np.zeros(3), False)
 
 
-def _propagate(q, bias, dt, gyro, w_io_o):
-    """The prediction step (readable twin of the kernel's); False if the gyro is unusable."""
+def _row(v) -> np.ndarray:
+    """A streamed vector as one row (1, 3); None (no sample) as a row of NaN."""
+    return np.full((1, 3), np.nan) if v is None else np.asarray(v, float).reshape(1, 3)
+
+
+# ---------------------------------------------------------------- readable phases
+def _predict(s, dt, gyro, w_io_o) -> bool:
+    """Gyro phase on the record ``s`` (readable twin of ``spacecraft_cf.predict``): ``q <-
+    q ⊗ exp((ω_ib − R_bo ω_io − b̂) dt)``; False (no motion) if the gyro is unusable."""
     gyro = np.asarray(gyro, float)
     if not np.all(np.abs(gyro) < 1e6):
-        return q, False
-    w_ob = gyro - quat_rotate(quat_conj(q), np.asarray(w_io_o, float)) - bias
-    q = quat_mul(q, quat_from_rotvec(w_ob * dt))
-    return q / np.linalg.norm(q), True
+        return False
+    w_ob = gyro - quat_rotate(quat_conj(s.q), np.asarray(w_io_o, float)) - s.bias
+    s.q[:] = _correct(s.q, w_ob * dt)
+    return True
 
 
 def _correct(q, rv):
+    """``normalise(q ⊗ exp(rv))`` (rotation vector rv in rad, body frame)."""
     rv = np.asarray(rv, float)
     q = quat_mul(q, quat_from_rotvec(rv))
     return q / np.linalg.norm(q)
 
 
+def _vector_error(q, ub, uo):
+    """``ub × (R_bo uo)``: Mahony's explicit correction of one unit pair (body frame)."""
+    return np.cross(ub, quat_rotate(quat_conj(q), uo))
+
+
+def _pi_correct(s, kp, ki, e, dt) -> None:
+    """Correction phase: ``b̂ <- b̂ − K_I e dt``, ``q <- q ⊗ exp(K_P e dt)``."""
+    s.bias[:] = s.bias - ki * e * dt
+    s.q[:] = _correct(s.q, kp * e * dt)
+
+
 class VectorPairFilter(Estimator):
-    """What the seed-000 filters share: state (``q_ob``, gyro bias, last time, the tail of
-    vector pairs for the delayed substitute), the pairs of a recording continuing that
-    state, the initial attitude and the batch outputs. Subclasses add their update/run."""
+    """What the seed-000 filters share: the kernel's state record (``q_ob``, gyro bias, ...),
+    the last time and the tail of vector pairs (for the delayed substitute), the pairs of
+    a recording or of one streamed sample continuing that state, the initial attitude and
+    the batch outputs. Subclasses add ``step`` (the readable twin of the kernel's step),
+    ``update`` and ``run``."""
 
+    kind = "spacecraft"
+    reference_frame = "o"
     needs = ("gyro", "mag", "extra.b_o_nT")
-    state_fields = ("q", "bias", "t_last", "tail")
+    state_fields = ("state", "t_last", "tail")
 
-    def reset(self) -> None:
-        self.q = None
-        self.bias = np.zeros(3)
+    def reset(self, q0_ob=None) -> None:
+        """A fresh filter; ``q0_ob`` (4,): start from this attitude (default: ``run`` finds
+        one by TRIAD, ``update`` starts from the identity, the orbital frame)."""
+        self.state = None  # the kernel's STATE record (an array of one element) once started
         self.flags = {}
         self.t_last = None  # s, last sample processed by ``run``
         self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
+        if q0_ob is not None:
+            self._start(None, q0_ob)
+
+    def _new_state(self) -> np.ndarray:
+        """A fresh kernel state at the identity (subclasses with more fields override)."""
+        from gnomon.kernels.spacecraft_cf import new_state
+
+        return new_state([1.0, 0.0, 0.0, 0.0])
+
+    @property
+    def q(self):
+        """``q_ob`` (4,) now (a copy), None before the first sample."""
+        return None if self.state is None else self.state["q"][0].copy()
+
+    @property
+    def bias(self) -> np.ndarray:
+        """Gyro-bias estimate (3,) rad/s now (a copy)."""
+        return np.zeros(3) if self.state is None else self.state["bias"][0].copy()
+
+    def record(self):
+        """The state as a record with named fields (``s.q``, ``s.bias``, ...), writing through
+        to ``self.state``: what the readable phases work on."""
+        if self.state is None:
+            self.state = self._new_state()
+        return self.state.view(np.recarray)[0]
 
     def pairs(self, rec: Recording) -> dict:
         """``vector_pairs`` of ``rec`` continuing this filter's earlier runs."""
@@ -255,25 +345,53 @@ class VectorPairFilter(Estimator):
         pairs["dt"][0] = self.first_dt(rec)
         return pairs
 
-    def _start(self, pairs: dict, q0) -> None:
-        if q0 is not None:
-            self.q = np.asarray(q0, float) / np.linalg.norm(q0)
-        elif self.q is None:
-            self.q = initial_q_ob(pairs)
+    def stream_pairs(self, dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
+                     w_io_o_rad_s, sun_substitute: str | None = None) -> dict:
+        """The kernel inputs of one streamed sample (the row ``vector_pairs`` makes of it in a
+        recording, the substitute from this filter's tail; ``sun_substitute`` overrides the
+        params'); the sample joins the tail."""
+        p = self.params
+        sub = p.sun_substitute if sun_substitute is None else sun_substitute
+        w_io = [0.0, -p.orbital_rate_rad_s, 0.0] if w_io_o_rad_s is None else w_io_o_rad_s
+        sun = _row(sun_b)
+        x = pairs_from_arrays(np.array([float(dt_s)]), _row(gyro_rad_s), _row(w_io),
+                              _row(mag_b), _row(mag_ref_o), sun, np.array([sun_b is not None]),
+                              _row(sun_ref_o), sub, p.delay_samples, self.tail)
+        self.tail = x.pop("tail")
+        return {k: v[0] for k, v in x.items()}
 
-    def _predict(self, dt_s, gyro, w_io_o, second: str):
-        """First part of every readable ``update``: reset the flags (``second``: the name of
-        the second pair's flag), then propagate with the gyro over ``dt_s``. Returns
-        whether the gyro was usable, or None when the sample has no interval (no step)."""
-        if self.q is None:
-            self.q = np.array([1.0, 0.0, 0.0, 0.0])
+    def _start(self, pairs: dict | None, q0) -> None:
+        """Initial attitude before a run: ``q0`` if given (the rest of the state kept), else
+        TRIAD of ``pairs`` for a fresh filter."""
+        if q0 is not None:
+            s = self.record()
+            s.q[:] = np.asarray(q0, float) / np.linalg.norm(q0)
+        elif self.state is None:
+            self.record().q[:] = initial_q_ob(pairs)
+
+    def _predict_phase(self, s, dt_s, gyro, w_io_o, second: str):
+        """First phase of every readable ``step``: reset the flags (``second``: the name of
+        the second pair's flag), propagate with the gyro over ``dt_s``. Returns whether the
+        gyro was usable, or None when the sample has no interval (no step)."""
         self.flags = {"mag_unusable": False, second: False, "gap": False, "coast": False}
         if not (0.0 < dt_s < 1e300):
             return None
-        self.q, ok_g = _propagate(self.q, self.bias, dt_s, gyro, w_io_o)
+        ok_g = _predict(s, dt_s, gyro, w_io_o)
         if not ok_g:
             self.flags["coast"] = True
         return ok_g
+
+    def _gap(self, dt_s) -> bool:
+        """Whether the interval is a gap (then flagged: no measurement is used)."""
+        if dt_s > self.params.max_dt_s:
+            self.flags.update(gap=True, coast=True)
+            return True
+        return False
+
+    def _begin(self, s, dt_s, gyro, w_io_o, second: str) -> bool:
+        """``_predict_phase`` and ``_gap``: True when the sample goes on to the measurements."""
+        return (self._predict_phase(s, dt_s, gyro, w_io_o, second) is not None
+                and not self._gap(dt_s))
 
     @staticmethod
     def _outputs(n: int):
@@ -282,8 +400,8 @@ class VectorPairFilter(Estimator):
 
     def _finish(self, rec: Recording, pairs: dict, q_out, b_out, flags, names,
                 **signals) -> Estimate:
-        """Keep the end state and wrap the outputs; ``names``: the 4 flag columns' names."""
-        self.q, self.bias = q_out[-1].copy(), b_out[-1].copy()
+        """Keep the end time and tail and wrap the outputs (the kernel has continued
+        ``self.state`` in place); ``names``: the 4 flag columns' names."""
         self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
         flag_signals = {name: flags[:, i].astype(bool) for i, name in enumerate(names)}
         return Estimate(
@@ -293,21 +411,34 @@ class VectorPairFilter(Estimator):
 
 
 class ExplicitSpacecraftCF(VectorPairFilter):
-    """Explicit complementary filter (Mahony 2008) on the magnetic and sun pairs; ``q_ob``."""
+    """Explicit complementary filter (Mahony 2008) on the magnetic and sun pairs; ``q_ob``.
+
+    Streaming: ``update(dt_s, gyro_rad_s, *, mag_b, mag_ref_o, sun_b, sun_ref_o,
+    w_io_o_rad_s)`` (see the module docstring); batch: ``run(rec)``."""
 
     name = "ecf-spacecraft"
     summary = ("Explicit complementary filter for spacecraft (seed 000 baseline): mag + sun + "
                "gyro, orbital frame, PI drift estimation, delayed-field sun substitute")
+    paper = "seed 000 (baseline: Mahony, Hamel & Pflimlin 2008)"
     Params = SpacecraftCFParams
 
-    def update(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
-        """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
+    def update(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
+               sun_ref_o=None, w_io_o_rad_s=None) -> np.ndarray:
+        """One raw sample (streaming; arguments in the module docstring). Returns ``q_ob``
+        (4,); ``self.flags`` says what was used."""
+        x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
+                              w_io_o_rad_s)
+        return self.step(dt_s, x["gyro"], x["w_io_o"], x["mag_b"], x["mag_o"], x["sec_b"],
+                         x["sec_o"], x["sec_valid"])
+
+    def step(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
+        """One sample given the kernel's inputs (the second pair already substituted): the
+        readable twin of ``spacecraft_cf.ecf_step``. Returns ``q_ob`` (4,)."""
         p = self.params
-        if self._predict(dt_s, gyro, w_io_o, "sun_unusable") is None:
+        s = self.record()
+        if not self._begin(s, dt_s, gyro, w_io_o, "sun_unusable"):
             return self.q
-        if dt_s > p.max_dt_s:
-            self.flags.update(gap=True, coast=True)
-            return self.q
+        # -- vector pairs: magnetometer, sun (or substitute) unless parallel to it
         ubm, ok_mb = _unit(mag_b)
         uom, ok_mo = _unit(mag_o)
         ok_m = ok_mb and ok_mo
@@ -317,42 +448,34 @@ class ExplicitSpacecraftCF(VectorPairFilter):
         if ok_m and ok_s and np.linalg.norm(np.cross(uom, uos)) < np.sin(
                 np.radians(p.min_angle_deg)):
             ok_s = False
-        self.flags["mag_unusable"] = not ok_m
-        self.flags["sun_unusable"] = not ok_s
-        q_bo = quat_conj(self.q)
-        e = np.zeros(3)
-        if ok_m:
-            e += p.k_mag * np.cross(ubm, quat_rotate(q_bo, uom))
-        if ok_s:
-            e += p.k_sun * np.cross(ubs, quat_rotate(q_bo, uos))
-        if ok_m and ok_s:
-            kp, ki = p.kp_rad_s, p.ki_per_s
-        elif ok_m or ok_s:
-            kp, ki = p.kp_single_rad_s, p.ki_single_per_s
-        else:
+        self.flags.update(mag_unusable=not ok_m, sun_unusable=not ok_s)
+        if not (ok_m or ok_s):
             self.flags["coast"] = True
             return self.q
-        self.bias = self.bias - ki * e * dt_s
-        self.q = _correct(self.q, kp * e * dt_s)
+        # -- PI correction
+        e = np.zeros(3)
+        if ok_m:
+            e += p.k_mag * _vector_error(s.q, ubm, uom)
+        if ok_s:
+            e += p.k_sun * _vector_error(s.q, ubs, uos)
+        if ok_m and ok_s:
+            _pi_correct(s, p.kp_rad_s, p.ki_rad_s2, e, dt_s)
+        else:
+            _pi_correct(s, p.kp_single_rad_s, p.ki_single_rad_s2, e, dt_s)
         return self.q
 
     def run(self, rec: Recording, q0=None) -> Estimate:
         """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
         sample with both pairs, else the current state, else identity)."""
-        from gnomon.kernels.spacecraft_cf import ecf_batch
+        from gnomon.kernels.spacecraft_cf import ecf_batch, ecf_coefficients
 
         self.check_inputs(rec)
-        p = self.params
         pairs = self.pairs(rec)
         self._start(pairs, q0)
         q_out, b_out, flags = self._outputs(len(rec))
-        state_q = np.array(self.q, float)
-        state_b = np.array(self.bias, float)
-        ecf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], pairs["mag_b"], pairs["mag_o"],
-                  pairs["sec_b"], pairs["sec_o"], pairs["sec_valid"], state_q, state_b,
-                  p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.k_mag,
-                  p.k_sun, p.max_dt_s, float(np.sin(np.radians(p.min_angle_deg))), q_out,
-                  b_out, flags)
+        ecf_batch(ecf_coefficients(self.params), self.state, pairs["dt"], pairs["gyro"],
+                  pairs["w_io_o"], pairs["mag_b"], pairs["mag_o"], pairs["sec_b"],
+                  pairs["sec_o"], pairs["sec_valid"], q_out, b_out, flags)
         return self._finish(rec, pairs, q_out, b_out, flags,
                             ("mag_unusable", "sun_unusable", "gap", "coast"),
                             sun_substituted=pairs["substituted"])

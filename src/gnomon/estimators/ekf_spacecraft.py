@@ -1,4 +1,4 @@
-"""Spacecraft attitude from magnetometer + sun sensor: the seed-001 EKF and a gyro-aided MEKF.
+"""Spacecraft attitude from magnetometer + sun sensor without a gyro: the seed-001 EKF.
 
 Frames (see the conventions page): ``o`` orbital (z nadir, y minus orbit normal),
 ``b`` body. The estimate is ``q_ob`` (orbital from body), the recording's
@@ -23,10 +23,25 @@ Measurements: unit field and sun vectors in b, ``y = R(q)^T [b̂_o; ŝ_o]``,
 quaternion is renormalised after prediction and update. In eclipse
 (``sun_valid`` false) only the magnetometer rows are used. No gyro.
 
-``MEKFSpacecraft`` ("mekf-spacecraft") — the remedy the paper stops short of:
-the multiplicative EKF (Lefferts, Markley & Shuster 1982; Markley & Crassidis
-2014, ch. 6) driven by the gyro ``w_ib_b``, error state ``[δθ, δb]`` (attitude
-error in b, gyro bias), the same vector measurements.
+Its gyro-aided remedy, ``MEKFSpacecraft`` ("mekf-spacecraft"), lives beside the
+seed-000 MEKF in :mod:`gnomon.estimators.mekf_spacecraft`; it shares this module's input
+preparation (``reference_inputs``) and initial attitude (TRIAD).
+
+``run`` calls the kernel ``gnomon.kernels.ekf_spacecraft.ekf_batch`` (coefficients
+``coefficients(params, J, gg)``, state record ``STATE`` holding ``z``, ``P`` and the known
+inputs of the last sample); its readable twin is the kernel's ``.py_func``
+(``run(rec, compiled=False)``). Streaming::
+
+    update(dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
+           sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
+           tau_b_Nm=None, inertia_kg_m2=None) -> q_ob (4,)
+
+``gyro_rad_s`` is ignored (the filter has no gyro: the rate is a state); ``mag_b``/``sun_b``
+(3,) measured in b and ``mag_ref_o``/``sun_ref_o`` (3,) models in o (any one unit, only
+directions are used; None = no sample, e.g. eclipse); ``w_io_o_rad_s`` (3,) rad/s
+(default ``[0, −orbit_rate, 0]``); the wheel momentum ``h_b_Nms``, its rate ``hdot_b_Nm``
+and the known external torque ``tau_b_Nm`` (e.g. magnetorquer ``m × B``) at this sample
+(None: zero) drive the prediction to the next sample, as in ``run``.
 
 Unit-vector measurements make the filters insensitive to a pure magnitude error
 of the field model (an observation the campaign of seed 001 confirms).
@@ -43,8 +58,7 @@ from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_dcm, quat_rotate
 
-__all__ = ["EKFSpacecraft", "MEKFSpacecraft", "EKFSpacecraftParams", "MEKFSpacecraftParams",
-           "triad_q_ob", "reference_inputs"]
+__all__ = ["EKFSpacecraft", "EKFSpacecraftParams", "triad_q_ob", "reference_inputs"]
 
 MU_EARTH = 3.986004418e14  # m^3/s^2
 
@@ -135,27 +149,6 @@ def _initial_q(rec: Recording, inp: dict) -> np.ndarray:
         return np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def _continue(f, rec: Recording, args: list, per_sample, z0_at: int, P0_at: int, state,
-              b0_at: int | None = None):
-    """Kernel arguments that continue ``f``'s earlier run, and how many output rows to drop.
-
-    The kernels predict sample k with the inputs of sample k-1, so a continued run
-    prepends the last sample the filter saw (``f.last_row``) and starts from the state
-    it ended in: the outputs after that row equal those of one uninterrupted run.
-    """
-    if f.last_row is None:
-        return args, 0
-    dt0 = f.first_dt(rec)
-    for j, i in enumerate(per_sample):
-        args[i] = np.ascontiguousarray(np.concatenate([f.last_row[j], args[i]]))
-    args[0][1] = dt0
-    args[z0_at] = np.asarray(state[0], float).copy()
-    args[P0_at] = np.asarray(state[1], float).copy()
-    if b0_at is not None:
-        args[b0_at] = np.asarray(f.bias, float).copy()
-    return args, 1
-
-
 def _series(rec: Recording, name: str) -> np.ndarray:
     v = rec.extra.get(name)
     if v is None:
@@ -196,91 +189,77 @@ class EKFSpacecraftParams(Params):
         self._require("substeps", self.substeps >= 1, "must be >= 1")
 
 
-@dataclass(frozen=True)
-class MEKFSpacecraftParams(Params):
-    """Tuning of :class:`MEKFSpacecraft` (SI)."""
-
-    # 3x the magnetometer noise (300 nT in 30,000 nT): with a gyro the filter can afford to
-    # lean less on the field model (seed-001 campaign: eclipse peak 0.43 vs 0.88 deg)
-    sigma_mag: float = param(0.03, "1", "noise of the unit field vector (per component)")
-    sigma_sun: float = param(0.005, "1", "noise of the unit sun vector (per component)")
-    gyro_arw_rad_rt_s: float = param(1e-4, "rad/sqrt(s)", "gyro angle random walk")
-    gyro_rrw_rad_s_rt_s: float = param(1e-6, "rad/s/sqrt(s)", "gyro bias random walk")
-    p0_att_rad: float = param(0.05, "rad", "initial attitude standard deviation")
-    p0_bias_rad_s: float = param(0.002, "rad/s", "initial gyro bias standard deviation")
-    orbit_rate_rad_s: float = param(0.0011, "rad/s",
-                                    "mean motion (used if the recording lacks extra.w_io_o)")
-    use_sun: bool = param(True, "", "use the sun sensor when valid")
-
-    def validate(self):
-        for n in ("sigma_mag", "sigma_sun", "orbit_rate_rad_s"):
-            self._require(n, getattr(self, n) > 0, "must be > 0")
-        for n in ("gyro_arw_rad_rt_s", "gyro_rrw_rad_s_rt_s", "p0_att_rad", "p0_bias_rad_s"):
-            self._require(n, getattr(self, n) >= 0, "must be >= 0")
-
-
 class EKFSpacecraft(Estimator):
     """The seed-001 EKF: state (body rate, quaternion), dynamics in the prediction, no gyro."""
 
     name = "ekf-spacecraft"
     summary = ("Gyro-less EKF [w_ib_b, q_ob] with rigid-body dynamics, magnetometer + sun "
                "sensor (seed 001)")
+    paper = "seed 001"
+    kind = "spacecraft"
+    reference_frame = "o"
     needs = ("mag", "sun", "extra.b_o_nT", "extra.s_o")
 
     Params = EKFSpacecraftParams
 
-    state_fields = ("z", "P", "_prev", "last_row", "t_last")
+    state_fields = ("state", "t_last", "_coef")
 
     def reset(self) -> None:
-        self.z = None
-        self.P = None
-        self._prev = None
-        self.last_row = None  # the per-sample kernel inputs of the last sample ``run`` saw
+        self.state = None  # the kernel's STATE record once started
         self.t_last = None
+        self._coef = None  # the streaming update's coefficients (from its first sample)
 
-    def update(self, dt_s: float, mag_b, b_o, sun_b=None, s_o=None, *, w_io_o=None,
-               h_b=(0.0, 0.0, 0.0), hdot_b=(0.0, 0.0, 0.0), tau_b=(0.0, 0.0, 0.0),
-               inertia=None) -> np.ndarray:
-        """One sample (streaming); returns ``q_ob`` (4,).
+    @property
+    def z(self):
+        """``[w_ib_b (rad/s), q_ob]`` (7,) now (a copy), None before the first sample."""
+        return None if self.state is None else self.state["z"][0].copy()
 
-        ``mag_b`` (3,) field in b and ``b_o`` (3,) the model field in o (any one unit);
-        ``sun_b``/``s_o`` (3,) sun vectors in b and o, or None (eclipse). ``w_io_o`` (3,)
-        rad/s (default ``[0, -orbit_rate, 0]``), wheel momentum ``h_b`` N m s, its rate
-        ``hdot_b`` N m and the known external torque ``tau_b`` N m (e.g. magnetorquer
-        ``m × B``) at this sample: they drive the prediction to the next sample, as in
-        ``run``. The first call initialises (TRIAD) and ``dt_s`` is ignored.
-        """
-        from gnomon.kernels.ekf_spacecraft import ekf_step
+    @property
+    def P(self):
+        """Covariance (7, 7) now (a copy), None before the first sample."""
+        return None if self.state is None else self.state["P"][0].copy()
+
+    def _new_state(self, z0) -> np.ndarray:
+        from gnomon.kernels.ekf_spacecraft import STATE
 
         p = self.params
-        mag_u, bo_u = _unit(mag_b), _unit(b_o)
-        sun_ok = sun_b is not None and s_o is not None and p.use_sun
-        sun_u = _unit(sun_b) if sun_ok else np.zeros(3)
-        so_u = _unit(s_o) if sun_ok else np.zeros(3)
-        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o is None
-                else np.asarray(w_io_o, float))
-        inputs = (w_io, np.asarray(h_b, float), np.asarray(hdot_b, float),
-                  np.asarray(tau_b, float))
-        if self.z is None:
-            J = self.inertia if inertia is None else np.asarray(inertia, float)
-            q0 = (triad_q_ob(sun_u, mag_u, so_u, bo_u) if sun_ok else
-                  triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0]))
-            self.z = np.concatenate([quat_rotate(quat_conj(q0), w_io), q0])
-            self.P = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
-            Jd = np.diag(J).copy()
-            self._Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) +
-                              [p.quat_noise_per_rt_s**2] * 4)
-            self._J = (np.ascontiguousarray(J), np.ascontiguousarray(np.linalg.inv(J)))
-            self._gg = 3.0 * float(np.linalg.norm(w_io)) ** 2 if p.gravity_gradient else 0.0
+        state = np.zeros(1, STATE)
+        state["z"][0] = z0
+        state["P"][0] = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
+        return state
+
+    def update(self, dt_s: float, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
+               sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
+               tau_b_Nm=None, inertia_kg_m2=None) -> np.ndarray:
+        """One sample (streaming; arguments in the module docstring); returns ``q_ob`` (4,).
+
+        The first call initialises (TRIAD) and ``dt_s`` is ignored; the inertia
+        (``inertia_kg_m2`` (3, 3), else the params' diagonal tensor) and the gravity-gradient
+        coefficient (from ``|w_io_o|``) are taken at the first streamed sample.
+        """
+        from gnomon.kernels.ekf_spacecraft import coefficients, ekf_step, hold_inputs
+
+        p = self.params
+        mag_u, bo_u = _vector(mag_b), _vector(mag_ref_o)
+        sun_ok = sun_b is not None and sun_ref_o is not None and p.use_sun
+        sun_u = _vector(sun_b) if sun_ok else np.zeros(3)
+        so_u = _vector(sun_ref_o) if sun_ok else np.zeros(3)
+        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o_rad_s is None
+                else np.asarray(w_io_o_rad_s, float))
+        if self._coef is None or self.state is None:  # streaming starts (or follows a run)
+            J = self.inertia if inertia_kg_m2 is None else np.asarray(inertia_kg_m2, float)
+            gg = 3.0 * float(np.linalg.norm(w_io)) ** 2 if p.gravity_gradient else 0.0
+            self._coef = coefficients(p, J, gg)
+        if self.state is None:
+            q0 = _first_q(mag_u, bo_u, sun_u, so_u, sun_ok)
+            self.state = self._new_state(np.concatenate([quat_rotate(quat_conj(q0), w_io), q0]))
         else:
-            wp, hp, hdp, tp = self._prev
-            innov = np.empty(2)
-            self.z, self.P = ekf_step(self.z, self.P, float(dt_s), mag_u, sun_u, sun_ok, bo_u,
-                                      so_u, wp, self._J[0], self._J[1], hp, hdp, tp, self._gg,
-                                      self._Q, p.sigma_mag**2, p.sigma_sun**2,
-                                      int(p.substeps), innov)
-        self._prev = inputs
-        return self.z[3:7].copy()
+            ekf_step(self._coef, self.state[0], float(dt_s), mag_u, bo_u, sun_u, so_u, sun_ok,
+                     np.empty(2))
+        zero = np.zeros(3)
+        hold_inputs(self.state[0], w_io, *(zero if v is None else np.asarray(v, float)
+                                           for v in (h_b_Nms, hdot_b_Nm, tau_b_Nm)))
+        return self.state["z"][0, 3:7].copy()
 
     @property
     def inertia(self) -> np.ndarray:
@@ -288,6 +267,9 @@ class EKFSpacecraft(Estimator):
         return np.diag([p.inertia_x_kg_m2, p.inertia_y_kg_m2, p.inertia_z_kg_m2])
 
     def _setup(self, rec: Recording, inertia=None):
+        """(coefficients, z0, kernel inputs) for ``rec``."""
+        from gnomon.kernels.ekf_spacecraft import coefficients
+
         p = self.params
         if inertia is not None:
             J = np.asarray(inertia, float)
@@ -297,6 +279,7 @@ class EKFSpacecraft(Estimator):
             J = self.inertia
         inp = reference_inputs(rec, p.orbit_rate_rad_s)
         mag_T = rec.mag_tesla
+
         def series(name):
             v = _series(rec, name)
             return v if p.control_inputs else np.zeros_like(v)
@@ -306,16 +289,10 @@ class EKFSpacecraft(Estimator):
         gg = 3.0 * n_orb**2 if p.gravity_gradient else 0.0
         q0 = _initial_q(rec, inp)
         w0 = quat_rotate(quat_conj(q0), inp["w_io_o"][0])  # orbit-fixed rate: first guess
-        z0 = np.concatenate([w0, q0])
-        P0 = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
-        Jd = np.diag(J).copy()
-        Q = np.diag(list((p.torque_noise_n_m / Jd) ** 2) + [p.quat_noise_per_rt_s**2] * 4)
-        args = (inp["dt"], inp["mag_u"], inp["sun_u"], inp["sun_valid"], inp["b_o_u"],
-                inp["s_o_u"], inp["w_io_o"], np.ascontiguousarray(J),
-                np.ascontiguousarray(np.linalg.inv(J)), series("h_wheel_b_Nms"),
-                series("hdot_wheel_b_Nm"), tau, gg, z0, P0, Q, p.sigma_mag**2, p.sigma_sun**2,
-                bool(p.use_sun), int(p.substeps))
-        return args
+        inputs = (inp["dt"], inp["mag_u"], inp["sun_u"], inp["sun_valid"], inp["b_o_u"],
+                  inp["s_o_u"], inp["w_io_o"], series("h_wheel_b_Nms"),
+                  series("hdot_wheel_b_Nm"), tau)
+        return coefficients(p, J, gg), np.concatenate([w0, q0]), inputs
 
     def run(self, rec: Recording, compiled: bool = True, inertia=None) -> Estimate:
         """Whole recording. ``inertia`` (3, 3) overrides the params' diagonal tensor (used by
@@ -323,15 +300,19 @@ class EKFSpacecraft(Estimator):
         from gnomon.kernels.ekf_spacecraft import ekf_batch
 
         self.check_inputs(rec)
-        args = list(self._setup(rec, inertia))
-        per_sample = (0, 1, 2, 3, 4, 5, 6, 9, 10, 11)  # dt, vectors, w_io_o, h, hdot, tau
-        args, skip = _continue(self, rec, args, per_sample, z0_at=13, P0_at=14,
-                               state=(self.z, self.P))
-        fn = ekf_batch if compiled else getattr(ekf_batch, "py_func", ekf_batch)
-        z, pd, innov, P_end = fn(*args)
-        self.last_row = [args[i][-1:].copy() for i in per_sample]
-        z, pd, innov = z[skip:], pd[skip:], innov[skip:]
-        self.z, self.P, self.t_last = z[-1].copy(), P_end, float(rec.t[-1])
+        c, z0, inputs = self._setup(rec, inertia)
+        first = 1 if self.state is None else 0  # a fresh filter starts at row 0
+        if first:
+            self.state = self._new_state(z0)
+        else:
+            inputs[0][0] = self.first_dt(rec)
+        n = len(rec)
+        z, pd, innov = np.empty((n, 7)), np.empty((n, 7)), np.empty((n, 2))
+        fn, state = ekf_batch, self.state
+        if not compiled:
+            fn, state = getattr(fn, "py_func", fn), state.view(np.recarray)
+        fn(c, state, first, *inputs, z, pd, innov)
+        self.t_last = float(rec.t[-1])
         return Estimate(
             t=rec.t, q=z[:, 3:7], estimator=self.name, params=self.params.as_dict(),
             frames={"reference": rec.frames.get("reference", "o"),
@@ -341,85 +322,19 @@ class EKFSpacecraft(Estimator):
         )
 
 
-class MEKFSpacecraft(Estimator):
-    """Gyro-aided multiplicative EKF (attitude error + gyro bias), magnetometer + sun sensor."""
+def _vector(v) -> np.ndarray:
+    """A streamed direction (3,) as a unit vector; None, zero or non-finite as zero (none)."""
+    return np.zeros(3) if v is None else _unit_or_zero(np.asarray(v, float).reshape(1, 3))[0]
 
-    name = "mekf-spacecraft"
-    summary = "Multiplicative EKF [dtheta, gyro bias] with gyro, magnetometer + sun sensor"
-    needs = ("gyro", "mag", "sun", "extra.b_o_nT", "extra.s_o")
 
-    Params = MEKFSpacecraftParams
-
-    state_fields = ("q", "bias", "P", "_prev", "last_row", "t_last")
-
-    def reset(self) -> None:
-        self.q = None
-        self.bias = np.zeros(3)
-        self.P = None
-        self._prev = None
-        self.last_row = None  # the per-sample kernel inputs of the last sample ``run`` saw
-        self.t_last = None
-
-    def update(self, dt_s: float, gyro_rad_s, mag_b, b_o, sun_b=None, s_o=None, *,
-               w_io_o=None) -> np.ndarray:
-        """One sample (streaming); returns ``q_ob`` (4,).
-
-        ``gyro_rad_s`` (3,) ``w_ib_b`` of this sample (it propagates to the next one, as in
-        ``run``); vectors as in :meth:`EKFSpacecraft.update`. The first call initialises
-        (TRIAD) and ``dt_s`` is ignored.
-        """
-        from gnomon.kernels.ekf_spacecraft import mekf_step
-
-        p = self.params
-        mag_u, bo_u = _unit(mag_b), _unit(b_o)
-        sun_ok = sun_b is not None and s_o is not None and p.use_sun
-        sun_u = _unit(sun_b) if sun_ok else np.zeros(3)
-        so_u = _unit(s_o) if sun_ok else np.zeros(3)
-        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o is None
-                else np.asarray(w_io_o, float))
-        if self.q is None:
-            self.q = (triad_q_ob(sun_u, mag_u, so_u, bo_u) if sun_ok else
-                      triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0]))
-            self.bias = np.zeros(3)
-            self.P = np.diag([p.p0_att_rad**2] * 3 + [p.p0_bias_rad_s**2] * 3)
-        else:
-            g_prev, w_prev = self._prev
-            innov = np.empty(2)
-            self.q, self.bias, self.P = mekf_step(
-                self.q, self.bias, self.P, float(dt_s), g_prev, mag_u, sun_u, sun_ok, bo_u,
-                so_u, w_prev, p.gyro_arw_rad_rt_s**2, p.gyro_rrw_rad_s_rt_s**2,
-                p.sigma_mag**2, p.sigma_sun**2, innov)
-        self._prev = (np.asarray(gyro_rad_s, float), w_io)
-        return self.q.copy()
-
-    def _setup(self, rec: Recording):
-        p = self.params
-        inp = reference_inputs(rec, p.orbit_rate_rad_s)
-        q0 = _initial_q(rec, inp)
-        P0 = np.diag([p.p0_att_rad**2] * 3 + [p.p0_bias_rad_s**2] * 3)
-        return (inp["dt"], np.ascontiguousarray(rec.gyro), inp["mag_u"], inp["sun_u"],
-                inp["sun_valid"], inp["b_o_u"], inp["s_o_u"], inp["w_io_o"], q0,
-                np.zeros(3), P0, p.gyro_arw_rad_rt_s**2, p.gyro_rrw_rad_s_rt_s**2,
-                p.sigma_mag**2, p.sigma_sun**2, bool(p.use_sun))
-
-    def run(self, rec: Recording, compiled: bool = True) -> Estimate:
-        """Whole recording; ``compiled=False`` runs the interpreted twin of the kernel."""
-        from gnomon.kernels.ekf_spacecraft import mekf_batch
-
-        self.check_inputs(rec)
-        per_sample = (0, 1, 2, 3, 4, 5, 6, 7)  # dt, gyro, vectors, w_io_o
-        args, skip = _continue(self, rec, list(self._setup(rec)), per_sample, z0_at=8,
-                               P0_at=10, state=(self.q, self.P), b0_at=9)
-        fn = mekf_batch if compiled else getattr(mekf_batch, "py_func", mekf_batch)
-        q, b, pd, innov, P_end = fn(*args)
-        self.last_row = [args[i][-1:].copy() for i in per_sample]
-        q, b, pd, innov = q[skip:], b[skip:], pd[skip:], innov[skip:]
-        self.q, self.bias, self.P = q[-1].copy(), b[-1].copy(), P_end
-        self.t_last = float(rec.t[-1])
-        return Estimate(
-            t=rec.t, q=q, estimator=self.name, params=self.params.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"),
-                    "body": rec.frames.get("body", "b")},
-            signals={"bias_rad_s": b, "p_diag": pd, "innovation_mag": innov[:, 0],
-                     "innovation_sun": innov[:, 1]},
-        )
+def _first_q(mag_u, bo_u, sun_u, so_u, sun_ok) -> np.ndarray:
+    """``q_ob`` of a first streamed sample: TRIAD (sun primary) if the sun is seen, else the
+    field and nadir; the identity without a usable field or for a parallel pair."""
+    if not (np.any(mag_u != 0.0) and np.any(bo_u != 0.0)):
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    try:
+        if sun_ok and np.any(sun_u != 0.0) and np.any(so_u != 0.0):
+            return triad_q_ob(sun_u, mag_u, so_u, bo_u)
+        return triad_q_ob(mag_u, [0.0, 0.0, 1.0], bo_u, [0.0, 0.0, 1.0])
+    except InputError:
+        return np.array([1.0, 0.0, 0.0, 0.0])

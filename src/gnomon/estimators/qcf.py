@@ -23,10 +23,19 @@ starting from the previous solution — compiled in
 vectorised over the samples). Degenerate samples (a pair unusable, the two
 directions closer than the quality threshold) give no measurement: the filter
 then uses the magnetometer pair alone with ``kp_single_rad_s``,
-``ki_single_per_s`` (the magnetometer + gyro filter) or, with both zero,
+``ki_single_rad_s2`` (the magnetometer + gyro filter) or, with both zero,
 coasts on the gyro. Sun loss is handled by the same substitutes as the
 explicit filter (``sun_substitute``: the paper's delayed magnetometer pair,
 the gyro-propagated one, or none).
+
+``run`` measures ``q_mes`` (``measure``) and calls the kernel
+``gnomon.kernels.spacecraft_cf.qcf_batch`` (coefficients ``qcf_coefficients(params)``,
+state record ``STATE``); ``step`` is its readable twin phase by phase (gyro prediction,
+measured quaternion, magnetometer fallback, PI correction). Streaming:
+``update(dt_s, gyro_rad_s=None, *, q_mes_ob=None, mag_b=None, mag_ref_o=None,
+w_io_o_rad_s=None)`` with ``q_mes_ob`` (4,) a measured ``q_ob`` (any solver; None: no
+measurement at this sample) and the other arguments as in
+``gnomon.estimators.ecf_spacecraft`` (``None`` = no new sample).
 """
 
 from __future__ import annotations
@@ -37,15 +46,17 @@ import numpy as np
 
 from gnomon.estimators.base import Estimate, Params, param
 from gnomon.estimators.ecf_spacecraft import (
+    KI_RENAMED,
     SUN_SUBSTITUTES,
     VectorPairFilter,
-    _correct,
+    _pi_correct,
     _unit,
+    _vector_error,
     initial_q_ob,
 )
 from gnomon.estimators.wahba import DEFAULT_MIN_QUALITY, SOLVERS, solve
 from gnomon.recording import Recording
-from gnomon.rotation import quat_conj, quat_mul, quat_rotate
+from gnomon.rotation import quat_conj, quat_mul
 
 __all__ = ["QuaternionCFParams", "QuaternionCF", "measured_quaternions",
            "gauss_newton_sequence_py"]
@@ -53,12 +64,15 @@ __all__ = ["QuaternionCFParams", "QuaternionCF", "measured_quaternions",
 
 @dataclass(frozen=True)
 class QuaternionCFParams(Params):
+    renamed = KI_RENAMED
+
     kp_rad_s: float = param(0.06, "rad/s", "proportional gain K_P on vec(conj(q̂) ⊗ q_mes) "
                              "(tuned on seed000)")
-    ki_per_s: float = param(6e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
+    ki_rad_s2: float = param(6e-4, "rad/s^2", "integral gain K_I (gyro drift estimation)")
     kp_single_rad_s: float = param(0.005, "rad/s", "K_P of the magnetometer-only correction "
                                    "when there is no q_mes")
-    ki_single_per_s: float = param(2e-5, "rad/s^2", "K_I of the magnetometer-only correction")
+    ki_single_rad_s2: float = param(2e-5, "rad/s^2", "K_I of the magnetometer-only "
+                                    "correction")
     solver: str = param("gauss-newton", "", "Wahba solver for q_mes: gauss-newton | quest | "
                         "davenport | svd | triad")
     gn_iterations: int = param(2, "", "Gauss-Newton steps per sample")
@@ -74,7 +88,7 @@ class QuaternionCFParams(Params):
     max_dt_s: float = param(10.0, "s", "longer sample intervals are gaps: gyro only")
 
     def validate(self):
-        for name in ("kp_rad_s", "ki_per_s", "kp_single_rad_s", "ki_single_per_s", "k_mag",
+        for name in ("kp_rad_s", "ki_rad_s2", "kp_single_rad_s", "ki_single_rad_s2", "k_mag",
                      "k_sun", "orbital_rate_rad_s", "min_quality"):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
         self._require("solver", self.solver in SOLVERS, f"must be one of {', '.join(SOLVERS)}")
@@ -119,14 +133,15 @@ def measured_quaternions(pairs: dict, solver: str = "gauss-newton", q0=None,
     """
     n = len(pairs["dt"])
     if solver == "gauss-newton":
-        from gnomon.kernels.spacecraft_cf import gn_sequence
+        from gnomon.kernels.spacecraft_cf import GaussNewtonCoefficients, gn_sequence
 
+        c = GaussNewtonCoefficients(float(k_mag), float(k_sun), int(gn_iterations),
+                                    float(min_quality))
         q = np.array([1.0, 0.0, 0.0, 0.0] if q0 is None else q0, float)
         q_out = np.empty((n, 4))
         ok = np.zeros(n, np.bool_)
-        gn_sequence(pairs["mag_o"], pairs["mag_b"], pairs["sec_o"], pairs["sec_b"],
-                    float(k_mag), float(k_sun), pairs["sec_valid"], q, int(gn_iterations),
-                    float(min_quality), q_out, ok)
+        gn_sequence(c, pairs["mag_o"], pairs["mag_b"], pairs["sec_o"], pairs["sec_b"],
+                    pairs["sec_valid"], q, q_out, ok)
         return q_out, ok
     r = np.stack([pairs["mag_o"], pairs["sec_o"]], axis=1)
     b = np.stack([pairs["mag_b"], pairs["sec_b"]], axis=1)
@@ -139,41 +154,52 @@ def measured_quaternions(pairs: dict, solver: str = "gauss-newton", q0=None,
 
 
 class QuaternionCF(VectorPairFilter):
-    """Complementary filter on the measured quaternion (seed 000's proposal); ``q_ob``."""
+    """Complementary filter on the measured quaternion (seed 000's proposal); ``q_ob``.
+
+    Streaming: ``update(dt_s, gyro_rad_s, *, q_mes_ob, mag_b, mag_ref_o, w_io_o_rad_s)``
+    (see the module docstring); batch: ``run(rec)`` (measures ``q_mes`` itself)."""
 
     name = "qcf"
     summary = ("Complementary filter driven by a measured quaternion (seed 000): Gauss-Newton "
                "(or QUEST/SVD/...) q_mes from mag + sun, PI on vec(conj(q) ⊗ q_mes)")
+    paper = "seed 000"
     Params = QuaternionCFParams
 
-    def update(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b=None, mag_o=None):
-        """One sample (readable reference of the kernel). Returns ``q_ob`` (4,)."""
+    def update(self, dt_s, gyro_rad_s=None, *, q_mes_ob=None, mag_b=None, mag_ref_o=None,
+               w_io_o_rad_s=None) -> np.ndarray:
+        """One raw sample (streaming). Returns ``q_ob`` (4,); ``self.flags`` says what was
+        used. The magnetic pair and the gyro also join the tail a later ``run`` continues."""
+        x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, None, None, w_io_o_rad_s,
+                              sun_substitute="none")  # q_mes comes from the caller
+        q_mes = np.full(4, np.nan) if q_mes_ob is None else q_mes_ob
+        return self.step(dt_s, x["gyro"], x["w_io_o"], q_mes, q_mes_ob is not None,
+                         x["mag_b"], x["mag_o"])
+
+    def step(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o) -> np.ndarray:
+        """One sample given the kernel's inputs: the readable twin of
+        ``spacecraft_cf.qcf_step``. Returns ``q_ob`` (4,)."""
         p = self.params
-        if self._predict(dt_s, gyro, w_io_o, "mes_unusable") is None:
+        s = self.record()
+        if not self._begin(s, dt_s, gyro, w_io_o, "mes_unusable"):
             return self.q
-        if dt_s > p.max_dt_s:
-            self.flags.update(gap=True, coast=True)
-            return self.q
+        # -- measured quaternion: e = conj(q̂) ⊗ q_mes, sign with e_w >= 0
         qm = np.asarray(q_mes, float)
         nm = float(np.linalg.norm(qm)) if np.all(np.isfinite(qm)) else 0.0
         ok_q = bool(mes_valid) and 0.5 < nm < 2.0
-        ubm, ok_mb = _unit(np.zeros(3) if mag_b is None else mag_b)
-        uom, ok_mo = _unit(np.zeros(3) if mag_o is None else mag_o)
+        # -- magnetometer (the fallback without q_mes)
+        ubm, ok_mb = _unit(mag_b)
+        uom, ok_mo = _unit(mag_o)
         ok_m = ok_mb and ok_mo
-        self.flags["mag_unusable"] = not ok_m
-        self.flags["mes_unusable"] = not ok_q
+        self.flags.update(mag_unusable=not ok_m, mes_unusable=not ok_q)
+        # -- PI correction
         if ok_q:
-            e = quat_mul(quat_conj(self.q), qm / nm)
-            ev = e[1:] if e[0] >= 0 else -e[1:]
-            kp, ki = p.kp_rad_s, p.ki_per_s
-        elif ok_m and (p.kp_single_rad_s > 0 or p.ki_single_per_s > 0):
-            ev = np.cross(ubm, quat_rotate(quat_conj(self.q), uom))
-            kp, ki = p.kp_single_rad_s, p.ki_single_per_s
+            e = quat_mul(quat_conj(s.q), qm / nm)
+            _pi_correct(s, p.kp_rad_s, p.ki_rad_s2, e[1:] if e[0] >= 0 else -e[1:], dt_s)
+        elif ok_m and (p.kp_single_rad_s > 0 or p.ki_single_rad_s2 > 0):
+            _pi_correct(s, p.kp_single_rad_s, p.ki_single_rad_s2, _vector_error(s.q, ubm, uom),
+                        dt_s)
         else:
             self.flags["coast"] = True
-            return self.q
-        self.bias = self.bias - ki * ev * dt_s
-        self.q = _correct(self.q, kp * ev * dt_s)
         return self.q
 
     def measure(self, rec: Recording, pairs: dict | None = None, q0=None):
@@ -190,19 +216,15 @@ class QuaternionCF(VectorPairFilter):
     def run(self, rec: Recording, q0=None, measured=None) -> Estimate:
         """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
         sample with both pairs); ``measured``: a precomputed ``(pairs, q_mes, ok)``."""
-        from gnomon.kernels.spacecraft_cf import qcf_batch
+        from gnomon.kernels.spacecraft_cf import qcf_batch, qcf_coefficients
 
         self.check_inputs(rec)
-        p = self.params
         pairs, q_mes, ok = measured if measured is not None else self.measure(rec)
         self._start(pairs, q0)
         q_out, b_out, flags = self._outputs(len(rec))
-        state_q = np.array(self.q, float)
-        state_b = np.array(self.bias, float)
-        qcf_batch(pairs["dt"], pairs["gyro"], pairs["w_io_o"], np.ascontiguousarray(q_mes),
-                  np.asarray(ok, np.bool_), pairs["mag_b"], pairs["mag_o"], state_q, state_b,
-                  p.kp_rad_s, p.ki_per_s, p.kp_single_rad_s, p.ki_single_per_s, p.max_dt_s,
-                  q_out, b_out, flags)
+        qcf_batch(qcf_coefficients(self.params), self.state, pairs["dt"], pairs["gyro"],
+                  pairs["w_io_o"], np.ascontiguousarray(q_mes), np.asarray(ok, np.bool_),
+                  pairs["mag_b"], pairs["mag_o"], q_out, b_out, flags)
         return self._finish(rec, pairs, q_out, b_out, flags,
                             ("mag_unusable", "mes_unusable", "gap", "coast"),
                             q_mes=q_mes, q_mes_ok=np.asarray(ok, bool),

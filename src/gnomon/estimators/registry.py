@@ -26,7 +26,7 @@ _ENTRIES: dict[str, str] = {
     "qcf": "gnomon.estimators.qcf:QuaternionCF",
     "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
     "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
-    "mekf-spacecraft": "gnomon.estimators.ekf_spacecraft:MEKFSpacecraft",
+    "mekf-spacecraft": "gnomon.estimators.mekf_spacecraft:MEKFSpacecraft",
     "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
 }
 

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gnomon.errors import InputError
-from gnomon.rotation import dcm_from_quat, quat_conj, quat_from_dcm, quat_mul
+from gnomon.rotation import dcm_from_quat, quat_conj, quat_from_dcm, quat_mul, skew
 
 __all__ = ["WahbaResult", "triad", "davenport", "quest", "svd", "gauss_newton", "solve",
            "SOLVERS", "wahba_loss", "quality"]
@@ -312,15 +312,8 @@ def _gn_jacobian(q, v):
     dw = 2 * w0 * v + 2 * np.cross(u, v)
     uv = np.einsum("...i,...i->...", u, v)[..., None, None]
     du = (-2 * v[..., :, None] * u[..., None, :] + 2 * u[..., :, None] * v[..., None, :]
-          + 2 * uv * np.eye(3) - 2 * w0[..., None] * _skew(v))
+          + 2 * uv * np.eye(3) - 2 * w0[..., None] * skew(v))
     return np.concatenate([dw[..., :, None], du], axis=-1)
-
-
-def _skew(v):
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 def _rotate_unnorm(q, v):

@@ -189,3 +189,51 @@ def integrate_rates(q0, rate, dt, out):
         w, x, y, z, _ = exp_mul(w, x, y, z, rate[k, 0] * dt, rate[k, 1] * dt, rate[k, 2] * dt,
                                 True, True)
         out[k + 1, 0], out[k + 1, 1], out[k + 1, 2], out[k + 1, 3] = w, x, y, z
+
+
+# ---------------------------------------------------------------- the quadratic form of R(q)
+# Gauss-Newton over the four quaternion components (seed 000's q_mes) and the seed-001 EKF's
+# RK4 stages evaluate R(q) v off the unit sphere, where only the quadratic form is a
+# polynomial with an exact Jacobian. ``R(q)ᵀ v`` is ``rotate_quadratic`` of ``conj(q)``
+# (bitwise: a sign flip is exact) and its Jacobian that of ``conj(q)`` with the x, y, z
+# columns negated.
+
+
+@njit(inline="always")
+def rotate_quadratic(w, x, y, z, vx, vy, vz):
+    """``R(q) v = (w² − u·u) v + 2 (u·v) u + 2 w (u × v)``, ``u = [x, y, z]``, as a tuple.
+
+    Equal to ``rotate`` for a unit ``q``; for any ``q`` it is ``|q|²`` times the rotation of
+    ``v`` by ``q/|q|`` (a quadratic polynomial in the four components)."""
+    uu = x * x + y * y + z * z
+    uv = x * vx + y * vy + z * vz
+    cx = y * vz - z * vy
+    cy = z * vx - x * vz
+    cz = x * vy - y * vx
+    s = w * w - uu
+    return (s * vx + 2.0 * uv * x + 2.0 * w * cx,
+            s * vy + 2.0 * uv * y + 2.0 * w * cy,
+            s * vz + 2.0 * uv * z + 2.0 * w * cz)
+
+
+@njit(inline="always")
+def rotate_quadratic_jac(w, x, y, z, vx, vy, vz, A):
+    """``A (3, 4) <- ∂(R(q) v)/∂[w, x, y, z]`` of ``rotate_quadratic`` (exact for any q)::
+
+        ∂/∂w = 2 w v + 2 u × v,   ∂/∂u = 2 (u·v) I − 2 v uᵀ + 2 u vᵀ − 2 w [v×]
+    """
+    uv2 = 2.0 * (x * vx + y * vy + z * vz)
+    w2 = 2.0 * w
+    A[0, 0] = w2 * vx + 2.0 * (y * vz - z * vy)
+    A[1, 0] = w2 * vy + 2.0 * (z * vx - x * vz)
+    A[2, 0] = w2 * vz + 2.0 * (x * vy - y * vx)
+    # 2 (u·v) I − 2 v uᵀ + 2 u vᵀ (the diagonal of the last two cancels), then − 2 w [v×]
+    A[0, 1] = (-2.0 * vx * x + 2.0 * x * vx) + uv2
+    A[0, 2] = (-2.0 * vx * y + 2.0 * x * vy) + w2 * vz
+    A[0, 3] = (-2.0 * vx * z + 2.0 * x * vz) - w2 * vy
+    A[1, 1] = (-2.0 * vy * x + 2.0 * y * vx) - w2 * vz
+    A[1, 2] = (-2.0 * vy * y + 2.0 * y * vy) + uv2
+    A[1, 3] = (-2.0 * vy * z + 2.0 * y * vz) + w2 * vx
+    A[2, 1] = (-2.0 * vz * x + 2.0 * z * vx) + w2 * vy
+    A[2, 2] = (-2.0 * vz * y + 2.0 * z * vy) - w2 * vx
+    A[2, 3] = (-2.0 * vz * z + 2.0 * z * vz) + uv2
