@@ -33,10 +33,12 @@ from gnomon.estimators import registry
 from gnomon.metrics import score_broad
 from gnomon.recording import Recording
 
-__all__ = ["run_broad", "DEFAULT_FILTERS"]
+__all__ = ["run_broad", "default_filters"]
 
-#: gnomon filters run by default (all registered filters that take gyro+acc+mag in ENU)
-DEFAULT_FILTERS: tuple[str, ...] = ("mahony", "eskf-r6", "eskf-r3", "tilt-cf", "robust-ahrs")
+
+def default_filters() -> tuple[str, ...]:
+    """The gnomon filters run by default: every registered IMU filter (``kind = "imu"``)."""
+    return tuple(registry.names("imu"))
 _KEYS = ("total", "heading", "inclination")
 
 
@@ -58,7 +60,7 @@ def _methods(filters: Sequence[str], anchors: Sequence[str] | None):
     return methods
 
 
-def run_broad(data_dir, filters: Sequence[str] = DEFAULT_FILTERS,
+def run_broad(data_dir, filters: Sequence[str] | None = None,
               anchors: Sequence[str] | None = None, progress: bool = False) -> dict:
     """Run ``filters`` (registry names) and ``anchors`` (None: every installed one) on every
     BROAD trial in ``data_dir`` (``.hdf5`` and ``.mat``); returns the JSON object above.
@@ -69,7 +71,7 @@ def run_broad(data_dir, filters: Sequence[str] = DEFAULT_FILTERS,
     paths = broad_trials(data_dir)
     if not paths:
         raise InputError("no BROAD trial (.hdf5 or .mat) found", file=str(data_dir))
-    methods = _methods(filters, anchors)
+    methods = _methods(default_filters() if filters is None else filters, anchors)
     groups_of = broad_groups(data_dir)
     rows, errors, timing = [], [], {}
     bar = None

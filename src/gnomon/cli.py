@@ -190,9 +190,9 @@ def cmd_estimate(args) -> int:
 
 def cmd_benchmark(args) -> int:
     """``gnomon.benchmark.run_broad(data_dir, filters, anchors)``."""
-    from gnomon.benchmark import DEFAULT_FILTERS, run_broad
+    from gnomon.benchmark import default_filters, run_broad
 
-    filters = args.filters.split(",") if args.filters else list(DEFAULT_FILTERS)
+    filters = args.filters.split(",") if args.filters else list(default_filters())
     anchors = None if args.anchors is None else (
         [] if args.anchors in ("", "none") else args.anchors.split(","))
     res = run_broad(args.data, filters=filters, anchors=anchors,

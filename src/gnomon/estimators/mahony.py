@@ -222,7 +222,7 @@ class Mahony(Estimator):
         mahony_batch(dt, np.ascontiguousarray(rec.gyro),
                      np.ascontiguousarray(rec.on_time_base("accel")),
                      np.ascontiguousarray(rec.on_time_base("mag")), self.state, coefficients(p),
-                     q_out, b_out, flags)
+                     q_out, b_out, flags, not rec.single_rate)
         self.t_last = float(rec.t[-1])
         return Estimate(
             t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),

@@ -61,15 +61,13 @@ def new_state(q0, bias0=(0.0, 0.0, 0.0)) -> np.ndarray:
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
 def _accel_error(ux, uy, uz, ax, ay, az):
     """Accelerometer phase: ``e_acc = a/|a| × up_b`` (body; ``up_b`` the third row of
-    ``R_nb``). Returns ``(ex, ey, ez, skipped)``; a zero or NaN vector (no new sample)
-    gives a zero error."""
+    ``R_nb``). Returns ``(ex, ey, ez, skipped)``; a zero vector gives a zero error."""
     na = math.sqrt(ax * ax + ay * ay + az * az)
-    ok = na > 0.0
-    ia = 1.0 / na if ok else 0.0
-    ax = ax * ia if ok else 0.0
-    ay = ay * ia if ok else 0.0
-    az = az * ia if ok else 0.0
-    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, not ok
+    ia = 1.0 / na if na > 0.0 else 0.0
+    ax *= ia
+    ay *= ia
+    az *= ia
+    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, na == 0.0
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
@@ -82,23 +80,22 @@ def _mag_error(c00, c01, c02, c10, c11, c12, ux, uy, uz, mx, my, mz, heading_onl
     (``rn = |h_xy|``): its vertical part ``hx·rn`` is the heading error, all that
     ``heading_only`` keeps (along up)."""
     nm = math.sqrt(mx * mx + my * my + mz * mz)
-    ok = nm > 0.0
-    im = 1.0 / nm if ok else 0.0
-    mx = mx * im if ok else 0.0
-    my = my * im if ok else 0.0
-    mz = mz * im if ok else 0.0
+    im = 1.0 / nm if nm > 0.0 else 0.0
+    mx *= im
+    my *= im
+    mz *= im
     hx = c00 * mx + c01 * my + c02 * mz
     hy = c10 * mx + c11 * my + c12 * mz
     rn = math.sqrt(hx * hx + hy * hy)
     if heading_only:
         d = hx * rn
-        return d * ux, d * uy, d * uz, not ok
+        return d * ux, d * uy, d * uz, nm == 0.0
     hz = ux * mx + uy * my + uz * mz
     n0 = hz * (hy - rn)
     n1 = -hx * hz
     n2 = hx * rn
     return (c00 * n0 + c10 * n1 + ux * n2, c01 * n0 + c11 * n1 + uy * n2,
-            c02 * n0 + c12 * n1 + uz * n2, not ok)
+            c02 * n0 + c12 * n1 + uz * n2, nm == 0.0)
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
@@ -150,15 +147,10 @@ def mahony_step(q, b, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     return flags
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
-def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
-    """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
-
-    ``state`` (one-element ``STATE`` array) is updated in place; outputs ``q_out`` (N, 4),
-    ``b_out`` (N, 3) and ``flags`` (N,) uint8 with the bits of ``mahony_step``. The state
-    stays in registers over the loop (same arithmetic as ``mahony_step``).
-    """
-    s = state[0]
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
+def _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, multi_rate):
+    """The loop of ``mahony_batch``; ``multi_rate`` is a constant in each of its two
+    copies (without it, the single-rate loop carries no bookkeeping of sample times)."""
     w, x, y, z = s.q[0], s.q[1], s.q[2], s.q[3]
     b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
     sa, sm = s.since_acc_s, s.since_mag_s
@@ -172,18 +164,26 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
             sa, sm = 0.0, 0.0
             f = 4
         elif h > 0.0:
-            # a sensor without a new sample in this row (NaN) gives no correction; a new
-            # one is integrated over the time since its previous sample
-            sa, sm = sa + h, sm + h
-            new_a = acc[i, 0] == acc[i, 0]
-            new_m = mag[i, 0] == mag[i, 0]
-            ra = min(sa, max_dt) / h if new_a else 0.0
-            rm = min(sm, max_dt) / h if new_m else 0.0
+            ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
+            mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
+            ra, rm = 1.0, 1.0
+            if multi_rate:
+                # a sensor without a new sample in this row (NaN) gives no correction; a
+                # new one is integrated over the time since its previous sample
+                sa, sm = sa + h, sm + h
+                new_a = acc[i, 0] == acc[i, 0]
+                new_m = mag[i, 0] == mag[i, 0]
+                ra = (1.0 if sa == h else min(sa, max_dt) / h) if new_a else 0.0
+                rm = (1.0 if sm == h else min(sm, max_dt) / h) if new_m else 0.0
+                sa = 0.0 if new_a else sa
+                sm = 0.0 if new_m else sm
+                if not new_a:  # no sample: a zero vector (a zero error, flagged skipped)
+                    ax, ay, az = 0.0, 0.0, 0.0
+                if not new_m:
+                    mx, my, mz = 0.0, 0.0, 0.0
             w, x, y, z, b0, b1, b2, f, _ = _core(
-                w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
-                acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], c, True, ra, rm)
-            sa = 0.0 if new_a else sa
-            sm = 0.0 if new_m else sm
+                w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], ax, ay, az,
+                mx, my, mz, c, True, ra, rm)
         flags[i] = f
         q_out[i, 0] = w
         q_out[i, 1] = x
@@ -195,6 +195,24 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags):
     s.q[0], s.q[1], s.q[2], s.q[3] = w, x, y, z
     s.since_acc_s, s.since_mag_s = sa, sm
     s.bias[0], s.bias[1], s.bias[2] = b0, b1, b2
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags, multi_rate):
+    """Run N samples: ``dt`` (N,) s (dt[0] = 0 keeps the initial state), sensors (N, 3).
+
+    ``state`` (one-element ``STATE`` array) is updated in place; outputs ``q_out`` (N, 4),
+    ``b_out`` (N, 3) and ``flags`` (N,) uint8 with the bits of ``mahony_step``. The state
+    stays in registers over the loop (same arithmetic as ``mahony_step``). ``multi_rate``:
+    the accelerometer and magnetometer rows may be NaN (no new sample; each correction
+    then covers the time since that sensor's previous sample); False: every row holds a
+    sample of each (the single-rate form, a loop without that bookkeeping).
+    """
+    s = state[0]
+    if multi_rate:
+        _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, True)
+    else:
+        _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, False)
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
