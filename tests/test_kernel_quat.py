@@ -190,3 +190,18 @@ def test_quadratic_rotation_and_its_jacobian_hold_off_the_unit_sphere():
             fd = (np.array(kq.rotate_quadratic(*(q + d), *v))
                   - np.array(kq.rotate_quadratic(*(q - d), *v))) / (2 * eps)
             np.testing.assert_allclose(A[:, k], fd, atol=1e-8)
+
+
+def test_up_row_and_product_matrices_agree_with_the_rotation_and_product():
+    """``up_row`` is R(q)ᵀ e_z; ``xi(q) v`` and ``omega(v) q`` equal ``q ⊗ [0, v]``."""
+    from gnomon.kernels.quat import omega, up_row, xi
+    from gnomon.rotation import quat_rotate
+
+    rng = np.random.default_rng(5)
+    for q in _random_unit(rng, 50):
+        up = quat_rotate(np.array([q[0], -q[1], -q[2], -q[3]]), np.array([0.0, 0.0, 1.0]))
+        np.testing.assert_allclose(up_row(*q), up, atol=1e-15)
+        v = rng.normal(size=3)
+        prod = quat_mul(q, np.concatenate([[0.0], v]))
+        np.testing.assert_allclose(xi(q) @ v, prod, atol=1e-14)
+        np.testing.assert_allclose(omega(v) @ q, prod, atol=1e-14)

@@ -26,7 +26,13 @@ import numpy as np
 from numba import njit
 
 from gnomon.kernels.linalg import cross_arr, skew_arr
-from gnomon.kernels.quat import normalised, rotate_quadratic, rotate_quadratic_jac
+from gnomon.kernels.quat import (
+    normalised,
+    omega,
+    rotate_quadratic,
+    rotate_quadratic_jac,
+    xi,
+)
 
 #: ``z`` (7,) ``[w_ib_b (rad/s), q_ob]``, ``P`` (7, 7); held inputs of the last sample:
 #: ``w_io_o`` (rad/s, orbital frame), wheel momentum ``h_b`` (N m s), its rate ``hdot_b``
@@ -76,45 +82,6 @@ def d_rt_v(q, v):
         for j in range(1, 4):
             out[i, j] = -out[i, j]
     return out
-
-
-@njit(cache=True)
-def xi(q):
-    """``Ξ(q)`` (4, 3): ``q ⊗ [0, v] = Ξ(q) v``."""
-    m = np.empty((4, 3))
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    m[0, 0] = -x
-    m[0, 1] = -y
-    m[0, 2] = -z
-    m[1, 0] = w
-    m[1, 1] = -z
-    m[1, 2] = y
-    m[2, 0] = z
-    m[2, 1] = w
-    m[2, 2] = -x
-    m[3, 0] = -y
-    m[3, 1] = x
-    m[3, 2] = w
-    return m
-
-
-@njit(cache=True)
-def omega(v):
-    """``Ω(v)`` (4, 4): ``q ⊗ [0, v] = Ω(v) q``."""
-    m = np.zeros((4, 4))
-    m[0, 1] = -v[0]
-    m[0, 2] = -v[1]
-    m[0, 3] = -v[2]
-    m[1, 0] = v[0]
-    m[1, 2] = v[2]
-    m[1, 3] = -v[1]
-    m[2, 0] = v[1]
-    m[2, 1] = -v[2]
-    m[2, 3] = v[0]
-    m[3, 0] = v[2]
-    m[3, 1] = v[1]
-    m[3, 2] = -v[0]
-    return m
 
 
 @njit(cache=True)

@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.linalg import cross as _cross
 from gnomon.kernels.quat import dcm as _dcm
 from gnomon.kernels.quat import exp_mul as _exp_mul
 
@@ -67,7 +68,8 @@ def _accel_error(ux, uy, uz, ax, ay, az):
     ax *= ia
     ay *= ia
     az *= ia
-    return ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux, na == 0.0
+    ex, ey, ez = _cross(ax, ay, az, ux, uy, uz)
+    return ex, ey, ez, na == 0.0
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)

@@ -160,6 +160,13 @@ def dcm(w, x, y, z):
             2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
 
 
+@njit(inline="always")
+def up_row(w, x, y, z):
+    """The third row ``c20, c21, c22`` of ``R(q)`` for a unit ``q = q_nb``: the navigation
+    frame's up axis in body coordinates (``R_nbᵀ e_z``)."""
+    return 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+
+
 @njit(cache=True, error_model="numpy")
 def chain_products(q0, steps, out):
     """Attitude from per-interval rotations: ``out[0] = q0``,
@@ -237,3 +244,42 @@ def rotate_quadratic_jac(w, x, y, z, vx, vy, vz, A):
     A[2, 1] = (-2.0 * vz * x + 2.0 * z * vx) + w2 * vy
     A[2, 2] = (-2.0 * vz * y + 2.0 * z * vy) - w2 * vx
     A[2, 3] = (-2.0 * vz * z + 2.0 * z * vz) + uv2
+
+
+@njit(cache=True)
+def xi(q):
+    """``Ξ(q)`` (4, 3): ``q ⊗ [0, v] = Ξ(q) v``."""
+    m = np.empty((4, 3))
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    m[0, 0] = -x
+    m[0, 1] = -y
+    m[0, 2] = -z
+    m[1, 0] = w
+    m[1, 1] = -z
+    m[1, 2] = y
+    m[2, 0] = z
+    m[2, 1] = w
+    m[2, 2] = -x
+    m[3, 0] = -y
+    m[3, 1] = x
+    m[3, 2] = w
+    return m
+
+
+@njit(cache=True)
+def omega(v):
+    """``Ω(v)`` (4, 4): ``q ⊗ [0, v] = Ω(v) q``."""
+    m = np.zeros((4, 4))
+    m[0, 1] = -v[0]
+    m[0, 2] = -v[1]
+    m[0, 3] = -v[2]
+    m[1, 0] = v[0]
+    m[1, 2] = v[2]
+    m[1, 3] = -v[1]
+    m[2, 0] = v[1]
+    m[2, 1] = -v[2]
+    m[2, 3] = v[0]
+    m[3, 0] = v[2]
+    m[3, 1] = v[1]
+    m[3, 2] = -v[0]
+    return m

@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from gnomon.kernels.linalg import cross
-from gnomon.kernels.quat import exp_mul
+from gnomon.kernels.quat import exp_mul, up_row
 
 STATE = np.dtype([("q", "f8", (4,)), ("bias", "f8", (3,)), ("since_acc_s", "f8"),
                   ("acc_rejected", "?")], align=True)
@@ -83,9 +83,7 @@ def correct_accel(s, c, dt, ax, ay, az):
     mx, my, mz = ax / nf, ay / nf, az / nf
     q = s.q
     w, x, y, z = q[0], q[1], q[2], q[3]
-    ux = 2.0 * (x * z - w * y)  # up in body: third row of R_nb
-    uy = 2.0 * (y * z + w * x)
-    uz = 1.0 - 2.0 * (x * x + y * y)
+    ux, uy, uz = up_row(w, x, y, z)  # up in body
     cx, cy, cz = cross(mx, my, mz, ux, uy, uz)
     sn = math.sqrt(cx * cx + cy * cy + cz * cz)
     if sn > 0.0:

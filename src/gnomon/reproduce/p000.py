@@ -100,6 +100,8 @@ def _step_time(rec) -> float:
 
 
 def _rms_deg(x_rad, mask) -> float:
+    """RMS in degrees that passes a NaN through (``metrics.rms_deg`` raises on one): a
+    grid point whose filter diverged scores NaN, and ``_tune`` ranks it last."""
     return float(np.degrees(np.sqrt(np.mean(np.asarray(x_rad)[mask] ** 2))))
 
 
