@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import gnomon
-from gnomon.report.figures import plot_estimate
 
 HERE = Path(__file__).resolve().parent
 trial = HERE.parent / "tests" / "data" / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat"
@@ -21,5 +20,5 @@ for name in ("mahony", "tilt-cf"):
     s = gnomon.score(rec.q_true, est.q, rec.score_mask)
     print(f"{name:>10}: total {s['total_deg']:.2f} deg, heading {s['heading_deg']:.2f} deg, "
           f"inclination {s['inclination_deg']:.2f} deg")
-    plot_estimate(rec, est, out / f"{name}.png")
+    gnomon.plot_estimate(rec, est, out / f"{name}.png")
 print(f"figures in {out}")

@@ -8,6 +8,7 @@ stays fast)::
     rec = gnomon.read("trial.hdf5")                    # a Recording (CSV, BROAD, HDF5)
     est = gnomon.make_filter("robust-ahrs").run(rec)   # est.q: (N, 4) q_ENU_sensor
     print(gnomon.score(rec.q_true, est.q, rec.score_mask))
+    gnomon.plot_estimate(rec, est, "est.png")          # attitude, error, signals
 
     gnomon.list_filters()                              # names; gnomon.describe_filters()
     sc = gnomon.load_scenario("seed001")               # a preset or a YAML file
@@ -35,6 +36,9 @@ _EXPORTS = {
     "list_filters": "gnomon.estimators.registry:names",
     "describe_filters": "gnomon.estimators.registry:describe",
     "score": "gnomon.metrics:score",
+    "error_angle_rad": "gnomon.metrics:error_angle_rad",
+    "plot_estimate": "gnomon.report.figures:plot_estimate",
+    "inspect": "gnomon.io:inspect",
     "load_scenario": "gnomon.scenarios:load_scenario",
     "list_scenarios": "gnomon.scenarios:list_presets",
     "simulate": "gnomon.scenarios:simulate",

@@ -116,6 +116,11 @@ def cmd_inspect(args) -> int:
         if info[key]:
             o = info[key]
             print(f"  {label}: {o['what']} ({o['coverage']:.0%} of gyro samples)")
+    if info.get("truncated"):
+        c = info["truncated"]
+        print(f"  truncated: the file ends inside a message at byte {c['at_byte']} "
+              f"({c['bytes_present']} of {c['message_bytes']} bytes); data up to "
+              f"t = {c['data_up_to_s']:.3f} s")
     if info.get("available"):
         print(f"  available: {json.dumps(info['available'], default=str)}")
     for line in info["assumed"]:
@@ -404,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("benchmark", help="score filters on a benchmark data set")
     s.add_argument("dataset", choices=["broad"], help="benchmark data set")
     s.add_argument("--data", required=True, help="directory with the BROAD trials")
-    s.add_argument("--filters", help="comma-separated gnomon filters (default: all 9-axis ones)")
+    s.add_argument("--filters", help="comma-separated gnomon filters (default: every IMU filter)")
     s.add_argument("--anchors", help="reference libraries: vqf,imufusion,ahrs-madgwick "
                                      "(default: every installed one; 'none' for none)")
     s.add_argument("--plot", help="write a per-trial bar chart, e.g. broad.png")

@@ -17,7 +17,7 @@ Streaming ``update``: one argument order for every filter,
 IMU's three sensors in the body frame (rad/s, m/s², µT); a filter that needs
 other inputs (sun sensor, reference vectors, orbital rate, a measured
 quaternion) takes them as keyword-only arguments whose names say frame and
-unit (``sun_b``, ``mag_ref_o_uT``, ``w_io_o_rad_s``). ``None`` means "no new
+unit (``sun_b``, ``mag_ref_o``: directions, any unit; ``w_io_o_rad_s``). ``None`` means "no new
 sample of that sensor at this instant": the filter only uses a measurement
 when it is new. The return value is the attitude estimate after the sample,
 ``q_rb`` (4,) in the filter's reference frame (``reference_frame``).
