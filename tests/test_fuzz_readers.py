@@ -196,6 +196,40 @@ def test_truncated_and_corrupted_logs(tmp_path, log_files, kind, cut, flips):
         one_line_naming(e, path.name)
         return
     assert isinstance(rec, Recording)
+    if kind == "ulog" and not flips and len(data) not in _ulog_boundaries(src):
+        # cut inside a message: an error or said (a cut between two messages looks whole)
+        assert rec.meta["truncated"] is not None, len(data)
+        assert rec.meta["truncated"]["at_byte"] < len(data)
+        assert any("cut short" in s for s in rec.meta["assumed"])
+
+
+def _ulog_boundaries(src: Path) -> frozenset:
+    """Byte offsets at which a message of the ULog file ``src`` ends (and the next starts)."""
+    import struct
+
+    raw = src.read_bytes()
+    ends, pos = {16}, 16
+    while pos + 3 <= len(raw):
+        pos += 3 + struct.unpack_from("<H", raw, pos)[0]
+        ends.add(pos)
+    return frozenset(ends)
+
+
+def test_truncated_ulog_at_every_kind_of_cut(tmp_path):
+    """Cuts inside a message header, inside a payload and between two messages of the
+    data section: the first two are said, the last reads as a complete (shorter) log."""
+    src = DATA / "logs" / "px4" / "sample_log_small_imu.ulg"
+    raw = src.read_bytes()
+    ends = sorted(_ulog_boundaries(src))
+    boundary = ends[int(0.7 * len(ends))]
+    for cut, said in ((boundary + 1, True), (boundary + 3, True), (boundary + 7, True),
+                      (boundary, False)):
+        path = tmp_path / f"cut{cut}.ulg"
+        path.write_bytes(raw[:cut])
+        rec = read(path)
+        assert (rec.meta["truncated"] is not None) == said, cut
+        if said:
+            assert rec.meta["truncated"]["at_byte"] == boundary
 
 
 @pytest.mark.parametrize("kind", LOG_KINDS)
@@ -334,7 +368,12 @@ def test_rosbag_backward_nan_and_empty_topic(tmp_path):
             read(path)
         one_line_naming(e.value, path, field)
     path = bag("emptymag.bag", t, np.zeros(10), with_empty_mag=True)
-    assert read(path).mag is None  # a topic without messages: no magnetometer, said nowhere
+    rec = read(path)  # picked by default, without messages: no magnetometer, and said so
+    assert rec.mag is None and any("'/mag'" in s and "no messages" in s
+                                   for s in rec.meta["assumed"])
+    with pytest.raises(InputError, match="no messages") as e:  # named: an error
+        read(path, mag_topic="/mag")
+    one_line_naming(e.value, path, "mag_topic")
     with pytest.raises(InputError, match="zero") as e:  # unset header stamps
         read(bag("zero.bag", np.zeros(10), np.zeros(10)))
 

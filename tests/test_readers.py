@@ -136,6 +136,46 @@ def test_ulog_topics_and_instances():
         read(PX4_SMALL, mag_topic="sensor_combined")
 
 
+def test_ulog_cut_short_says_so_in_meta_and_inspect(tmp_path, capsys):
+    """pyulog stops silently at a message cut by the end of the file: the reader says where
+    and up to which time, and ``gnomon inspect`` prints it (as for DataFlash)."""
+    whole = read(PX4_SMALL)
+    assert whole.meta["truncated"] is None
+    assert not any("cut short" in s for s in whole.meta["assumed"])
+    raw = PX4_SMALL.read_bytes()
+    path = tmp_path / "cut.ulg"
+    path.write_bytes(raw[: int(0.6 * len(raw))])
+    rec = read(path)
+    cut = rec.meta["truncated"]
+    assert cut["at_byte"] < int(0.6 * len(raw)) < cut["at_byte"] + cut["message_bytes"]
+    assert cut["at_byte"] + cut["bytes_present"] == int(0.6 * len(raw))
+    assert cut["data_up_to_s"] == rec.t[-1] < whole.t[-1] - 1.0
+    said = [s for s in rec.meta["assumed"] if "ends inside a message" in s]
+    assert len(said) == 1 and f"at byte {cut['at_byte']}" in said[0] and "cut short" in said[0]
+    assert cli.main(["inspect", path]) == 0
+    out = capsys.readouterr().out
+    assert f"truncated: the file ends inside a message at byte {cut['at_byte']}" in out
+    assert cli.main(["inspect", path, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["truncated"] == cut
+    assert cli.main(["inspect", PX4_SMALL]) == 0
+    assert "truncated" not in capsys.readouterr().out
+
+
+def test_onboard_heading_reference_named_by_the_reader(capsys):
+    """Each reader says which north the device's own estimate refers heading to; the
+    comparison's ``heading_reference`` carries it."""
+    assert read(PX4_SMALL).meta["onboard_heading_reference"].startswith("true north (PX4's EKF2")
+    ap = read(AP_BIN).meta["onboard_heading_reference"]
+    assert ap.startswith("true north") and "COMPASS_AUTODEC = 1" in ap  # Canberra, 11.8 deg
+    assert "11.81 deg" in ap
+    assert read(IOS).meta["onboard_heading_reference"].startswith("magnetic north")
+    assert read(ANDROID).meta["onboard_heading_reference"].startswith("magnetic north")
+    assert read(PX4_SMALL, onboard=False).meta["onboard_heading_reference"] is None
+    assert cli.main(["estimate", PX4_SMALL, "--compare", "onboard", "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)["onboard"]["heading_reference"]
+    assert "heading offset" in ref and "its north: true north (PX4's EKF2" in ref
+
+
 def test_full_px4_sample_logs_read():
     d = logs_dir()
     if d is None:
@@ -154,6 +194,10 @@ def test_dataflash_att_and_ahr2_agree_and_put_gravity_up_and_the_field_south_up(
     assert detect_format(AP_BIN) == "dataflash" and len(rec) == 45
     assert rec.frames["body"] == "FLU" and rec.meta["onboard"].startswith("ATT")
     assert any("ends inside a message" in s for s in rec.meta["assumed"])  # 64 KiB cut
+    cut = rec.meta["truncated"]  # the same record as a cut ULog's
+    assert cut["at_byte"] + cut["bytes_present"] == AP_BIN.stat().st_size
+    assert cut["bytes_present"] < cut["message_bytes"]
+    assert cut["data_up_to_s"] == rec.t[-1]
     up = np.median(up_from_onboard(rec), axis=0)
     assert abs(up[2] - G) < 0.3 and np.hypot(up[0], up[1]) < 0.6
     ahr2 = read(AP_BIN, onboard="AHR2")  # its own quaternion Q1..Q4, independent of our Euler
@@ -230,6 +274,60 @@ def test_rosbag_bad_topic_choices(bags):
         read(bags["mcap"], stamps="now")
 
 
+def _bag_with_empty_mag(path: Path, *, full_mag: bool = False) -> Path:
+    """A ROS 1 bag with /imu (10 Imu messages), an empty /mag MagneticField topic and,
+    with ``full_mag``, a /mag_full topic with 5 messages."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    Imu, Mag, V3 = T["sensor_msgs/msg/Imu"], T["sensor_msgs/msg/MagneticField"], \
+        T["geometry_msgs/msg/Vector3"]
+
+    def header(t):
+        return T["std_msgs/msg/Header"](seq=0, stamp=T["builtin_interfaces/msg/Time"](
+            sec=int(t), nanosec=int(round((t % 1) * 1e9))), frame_id="imu")
+
+    with Writer(path) as w:
+        c = w.add_connection("/imu", Imu.__msgtype__, typestore=store)
+        w.add_connection("/mag", Mag.__msgtype__, typestore=store)
+        c_full = w.add_connection("/mag_full", Mag.__msgtype__, typestore=store) \
+            if full_mag else None
+        for i in range(10):
+            t = 1.0 + 0.01 * i
+            imu = Imu(header=header(t), orientation=T["geometry_msgs/msg/Quaternion"](
+                x=0, y=0, z=0, w=1), orientation_covariance=np.zeros(9),
+                angular_velocity=V3(x=0, y=0, z=0), angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=V3(x=0, y=0, z=9.8),
+                linear_acceleration_covariance=np.zeros(9))
+            w.write(c, 10**9 + i, store.serialize_ros1(imu, Imu.__msgtype__))
+            if c_full is not None and i % 2 == 0:
+                m = Mag(header=header(t), magnetic_field=V3(x=2e-5, y=0, z=-4e-5),
+                        magnetic_field_covariance=np.zeros(9))
+                w.write(c_full, 10**9 + i, store.serialize_ros1(m, Mag.__msgtype__))
+    return path
+
+
+def test_rosbag_empty_magnetometer_topic(tmp_path):
+    """An empty MagneticField topic: named by the user, an error naming it; picked by
+    default, no magnetometer and a sentence saying why; a topic with messages wins."""
+    path = _bag_with_empty_mag(tmp_path / "emptymag.bag")
+    with pytest.raises(InputError, match="field 'mag_topic'.*topic '/mag' has no messages") as e:
+        read(path, mag_topic="/mag")
+    assert str(path) in str(e.value)
+    rec = read(path)
+    assert rec.mag is None and rec.meta["mag_topic"] is None
+    assert any("'/mag'" in s and "no messages" in s and "no magnetometer" in s
+               for s in rec.meta["assumed"])
+    assert cli.main(["inspect", path, "--mag-topic", "/mag"]) == 2
+    both = read(_bag_with_empty_mag(tmp_path / "both.bag", full_mag=True))
+    assert both.meta["mag_topic"] == "/mag_full" and both.mag.shape == (5, 3)
+    assert not any("no messages" in s for s in both.meta["assumed"])
+    none = read(path, mag_topic="none")
+    assert none.mag is None and not any("no messages" in s for s in none.meta["assumed"])
+
+
 # ------------------------------------------------------------------ phones
 def test_tyrex_android_and_ios_gravity_up_and_mag_north_through_the_phones_estimate():
     for path, platform in ((ANDROID, "android"), (IOS, "ios")):
@@ -248,6 +346,48 @@ def test_tyrex_android_and_ios_gravity_up_and_mag_north_through_the_phones_estim
     raw = read(IOS, mag="raw", align_time=False)
     assert raw.t[0] > 50000  # the phone's own clock
     assert np.median(np.linalg.norm(raw.mag, axis=1)) > 100  # uncalibrated: hard iron
+
+
+def test_tyrex_ios_drops_the_magnetometer_rows_coremotion_holds():
+    """iOS's magnetometer-calibrated.txt repeats every other row's values at a new time
+    stamp (CoreMotion's field at ~94 Hz from a ~47 Hz sensor): a held value is not a new
+    measurement. The first arrival is kept; the raw file and the other sensors are not
+    touched (their rare repeats are quantisation)."""
+    table = np.loadtxt(IOS / "magnetometer-calibrated.txt")
+    held = np.all(table[1:, 1:4] == table[:-1, 1:4], axis=1)
+    assert held.sum() == 235 and table.shape[0] == 473  # the excerpt: half the rows
+    rec = read(IOS)
+    assert rec.mag.shape[0] == 473 - 235
+    assert not np.any(np.all(rec.mag[1:] == rec.mag[:-1], axis=1))
+    assert 44.0 < rec.rate_hz("mag") < 50.0 < 90.0 < rec.rate_hz("gyro")  # ~47 vs ~94 Hz
+    first = np.concatenate([[True], ~held])  # the first arrival of each value is kept
+    assert np.allclose(rec.mag_t - rec.meta["time_offset_s"], table[first, 0], atol=1e-9)
+    said = [s for s in rec.meta["assumed"] if "magnetometer-calibrated.txt: 235 of 473" in s]
+    assert len(said) == 1 and "CoreMotion holds" in said[0]
+    raw = read(IOS, mag="raw")
+    assert raw.mag.shape[0] == np.loadtxt(IOS / "magnetometer.txt").shape[0]
+    android = read(ANDROID)
+    assert android.mag.shape[0] == np.loadtxt(ANDROID / "magnetometer-calibrated.txt").shape[0]
+    assert len(read(IOS).t) == np.loadtxt(IOS / "gyroscope.txt").shape[0]
+
+
+def test_tyrex_ios_held_rows_tiny_case(tmp_path):
+    """Runs of held rows collapse to their first arrival; a value that comes back after
+    another one is a new sample; the raw magnetometer keeps its repeats."""
+    import shutil
+
+    d = tmp_path / "ios_trial"
+    shutil.copytree(IOS, d)
+    t0 = np.loadtxt(IOS / "gyroscope.txt")[0, 0]
+    values = [(1, 2, 3), (1, 2, 3), (4, 5, 6), (4, 5, 6), (4, 5, 6), (7, 8, 9), (1, 2, 3)]
+    rows = [f"{t0 + 0.01 * k:.4f} {x} {y} {z} 2" for k, (x, y, z) in enumerate(values)]
+    (d / "magnetometer-calibrated.txt").write_text("\n".join(rows) + "\n")
+    (d / "magnetometer.txt").write_text("\n".join(r.rsplit(" ", 1)[0] for r in rows) + "\n")
+    rec = read(d, align_time=False)
+    assert rec.mag.tolist() == [[1, 2, 3], [4, 5, 6], [7, 8, 9], [1, 2, 3]]
+    assert np.allclose(rec.mag_t - t0, [0.0, 0.02, 0.05, 0.06])
+    assert any("3 of 7 rows" in s for s in rec.meta["assumed"])
+    assert read(d, mag="raw", align_time=False).mag.shape[0] == 7
 
 
 def test_tyrex_full_trials_read():
@@ -369,6 +509,61 @@ def test_mat_v5_and_v73(tmp_path):
     with pytest.raises(InputError, match="field 'gyro'.*no gyro"):
         scipy.io.savemat(tmp_path / "none.mat", {"x": np.zeros(3)})
         read(tmp_path / "none.mat")
+
+
+def test_mat_v5_recognised_by_version_and_endian_bytes_not_the_header_text(tmp_path):
+    """The MAT-file spec: version 0x0100 and 'IM'/'MI' at bytes 124-127; the 116-byte text
+    is free (Qualisys QTM writes 'QTM_ver ...'). v7.3 keeps its 'MATLAB 7.3' text."""
+    import scipy.io
+
+    from gnomon.io.matlab import mat_version
+
+    n = 200
+    t = np.arange(n) / 100.0
+    q, gyro, accel, _ = L.motion(t)
+    path = tmp_path / "qtm_like.mat"
+    scipy.io.savemat(path, {"t": t, "gyr": gyro, "acc": accel})
+    raw = bytearray(path.read_bytes())
+    text = b"QTM_ver 2.10 (build 2084), Level 5 MAT-file, Platform: Windows7"
+    raw[:116] = text.ljust(116, b" ")
+    path.write_bytes(bytes(raw))
+    assert detect_format(path) == "mat"
+    rec = read(path)
+    assert rec.meta["format"] == "mat" and rec.meta["version"] == "5"
+    assert np.abs(rec.gyro - gyro).max() < 1e-12
+    assert read(path, format="mat").meta["version"] == "5"
+    # a v5 file that is not an IMU recording (a motion-capture export): the mat reader's
+    # message naming what is missing, not BROAD's
+    mocap = tmp_path / "mocap.mat"
+    scipy.io.savemat(mocap, {"qtm": {"Frames": 100.0, "FrameRate": 100.0,
+                                     "Timestamp": np.zeros(3)}})
+    raw = bytearray(mocap.read_bytes())
+    raw[:116] = text.ljust(116, b" ")
+    mocap.write_bytes(bytes(raw))
+    for fmt in ("auto", "mat"):
+        with pytest.raises(InputError, match="field 'gyro'.*no gyro variable") as e:
+            read(mocap, format=fmt)
+        assert str(mocap) in str(e.value)
+    head = bytes(116) + bytes(8)
+    assert mat_version(head + b"\x00\x01IM") == "5"
+    assert mat_version(head + b"\x01\x00MI") == "5"  # written big-endian
+    assert mat_version(head + b"\x00\x02IM") is None  # 0x0200 without the 7.3 text
+    assert mat_version(head + b"\x01\x00IM") is None
+    assert mat_version(b"MATLAB 7.3 MAT-file".ljust(128, b" ")) == "7.3"
+    assert mat_version(b"MATLAB 5.0 MAT-file".ljust(128, b" ")) is None  # no version bytes
+
+
+def test_mat_qualisys_files_of_the_tyrex_data_set():
+    d = tyrex_dir()
+    if d is None:
+        pytest.skip("tyrex data not found: set GNOMON_TYREX_DIR or put it in "
+                    "../shared/data/tyrex")
+    f = next(iter(sorted((d / "datasets" / "qualisys").glob("*.mat"))), None)
+    if f is None:
+        pytest.skip("no Qualisys .mat file in the tyrex data set")
+    assert detect_format(f) == "mat"
+    with pytest.raises(InputError, match="no gyro variable"):
+        read(f)
 
 
 # ------------------------------------------------------------------ shared machinery

@@ -367,8 +367,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=cmd_filters)
 
-    s = sub.add_parser("estimate", help="run a filter on a recording (CSV, BROAD, gnomon HDF5)")
-    s.add_argument("input", help="recording file")
+    s = sub.add_parser("estimate", help="run a filter on a recording or log (CSV, BROAD, "
+                                        "gnomon HDF5, PX4 ULog, ArduPilot DataFlash, ROS 1/2 "
+                                        "bag, tyrex/Sensor Logger/phyphox phone export, Xsens "
+                                        "text, MATLAB .mat)")
+    s.add_argument("input", help="recording file or folder (format from the content; "
+                                 "see --format)")
     s.add_argument("--filter", default="robust-ahrs",
                    help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")

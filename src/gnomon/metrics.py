@@ -237,9 +237,11 @@ def compare_onboard(rec: Recording, q_est) -> tuple[dict, np.ndarray]:
     ``heading_reference``, a sentence saying how the heading references were matched) and
     the device's estimate with the offset removed (N, 4; NaN where it has none).
 
-    The two refer heading to different norths in general (PX4's EKF2 and a phone OS to
-    true north through a declination model, a filter on the raw magnetometer to magnetic
-    north), so the constant heading offset between them is removed first."""
+    The two refer heading to different norths in general (PX4's EKF2 and ArduPilot with a
+    declination to true north, a phone OS to magnetic or true north depending on the API,
+    a filter on the magnetometer to magnetic north), so the constant heading offset
+    between them is removed first. ``heading_reference`` names the device's north when
+    the reader knew it (``rec.meta["onboard_heading_reference"]``)."""
     if rec.q_onboard is None:
         raise InputError("the recording holds no attitude estimate of the device's own",
                          field="q_onboard", file=rec.source or None)
@@ -250,8 +252,10 @@ def compare_onboard(rec: Recording, q_est) -> tuple[dict, np.ndarray]:
         raise InputError("no sample where both estimates exist", field="q_onboard",
                          file=rec.source or None)
     psi = np.radians(out["heading_offset_deg"])
+    north = (rec.meta or {}).get("onboard_heading_reference")
+    its = f"its north: {north}" if north else "its north"
     out["heading_reference"] = (f"constant heading offset {out['heading_offset_deg']:+.2f} deg "
-                                f"removed from the device's estimate (its north vs the "
+                                f"removed from the device's estimate ({its}; vs the "
                                 f"filter's magnetic north)")
     matched = np.full_like(rec.q_onboard, np.nan)
     ok = np.all(np.isfinite(rec.q_onboard), axis=1)

@@ -19,9 +19,9 @@ format            recognised by                                    reader
 ``phyphox``       zip/folder with CSVs headed ``Time (s)``, ...    :func:`read_phyphox`
 ``xsens``         text with ``//`` lines and ``PacketCounter`` /   :func:`read_xsens`
                   ``SampleTimeFine`` columns (MT Manager export)
-``mat``           ``MATLAB 5.0``/``7.3`` header                    :func:`read_mat` (a v5
-                                                                   file with BROAD's
-                                                                   fields: ``broad``)
+``mat``           v5: version 0x0100 and endian ``IM``/``MI`` at   :func:`read_mat` (a v5
+                  bytes 124-127 (the MAT-file spec; any header     file with BROAD's
+                  text); v7.3: ``MATLAB 7.3`` header               fields: ``broad``)
 ``broad``         HDF5 with ``imu_gyr`` or a ``.mat`` BROAD trial  :func:`read_broad`
 ``hdf5``          HDF5 with root attribute ``format =              :func:`read_recording`
                   "gnomon-recording"``

@@ -33,7 +33,7 @@ from gnomon.rotation import quat_mul
 
 __all__ = ["Q_ENU_NED", "Q_FRD_FLU", "Q_ENU_NWU", "frd_to_flu", "ned_frd_to_enu_flu",
            "optional_import", "series", "onboard_on", "gaps", "build", "quiet", "quiet_fd2",
-           "GAP_FACTOR", "LOGS_EXTRA"]
+           "GAP_FACTOR", "LOGS_EXTRA", "cut_short"]
 
 _S = math.sqrt(0.5)
 #: ENU from NED: x↔y swapped, z flipped
@@ -226,6 +226,19 @@ def build(path, names: dict, **fields) -> Recording:
     except InputError as err:
         raise InputError(err.message, file=str(path), field=names.get(err.field, err.field),
                          row=err.row) from None
+
+
+def cut_short(start: int, size: int, present: int, t: np.ndarray, assumed: list) -> dict:
+    """A log whose last message is cut off by the end of the file (a flight log cut at
+    power-off): the sentence for ``assumed`` and ``meta["truncated"]``, ``{"at_byte":
+    where the message starts, "message_bytes": its declared size, "bytes_present",
+    "data_up_to_s": the last gyro time stamp (s)}`` (``gnomon inspect`` prints it)."""
+    t_end = float(t[-1])
+    assumed.append(f"The file ends inside a message at byte {start} ({present} of its {size} "
+                   f"bytes present): the log is cut short; data up to t = {t_end:.3f} s "
+                   f"({t_end - float(t[0]):.3f} s after the first gyro sample).")
+    return {"at_byte": int(start), "message_bytes": int(size), "bytes_present": int(present),
+            "data_up_to_s": t_end}
 
 
 def as_path(path) -> Path:

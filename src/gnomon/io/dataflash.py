@@ -20,13 +20,17 @@ Frames and units: ArduPilot's body frame is FRD, its reference NED; vectors beco
 ``frames = {"reference": "ENU", "body": "FLU"}``. The accelerometer is specific force
 (−g on FRD z at rest). Magnetometer milligauss → µT (×0.1). Time: ``TimeUS`` (µs since
 boot; ``TimeMS`` in ms on old logs) in s. ``ATT`` is logged in centidegrees (0.01°
-resolution). The estimate is slerped onto the gyro time stamps (a comparison series).
+resolution). The estimate is slerped onto the gyro time stamps (a comparison series); its
+heading refers to true north when ArduPilot has a declination (``COMPASS_DEC``, set from
+the GPS position with ``COMPASS_AUTODEC``), else magnetic north: said, with the log's
+parameters, in ``meta["onboard_heading_reference"]``.
 
 Errors: a file pymavlink cannot parse, or in which it skipped bad bytes (corruption in
 the middle), is an :class:`~gnomon.errors.InputError` unless ``allow_corrupt=True``
 (then stated in ``meta["assumed"]``). A file cut off inside its last message (as a log
 cut at power-off, or pymavlink's 64 KiB ``test.BIN``) reads up to the last complete
-message, and ``meta["assumed"]`` says how many bytes were left.
+message; ``meta["assumed"]`` and ``meta["truncated"]`` say where it was cut and up to
+which time stamp the data go (``gnomon inspect`` prints it).
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from gnomon.errors import InputError
 from gnomon.io._common import (
     as_path,
     build,
+    cut_short,
     frd_to_flu,
     ned_frd_to_enu_flu,
     onboard_on,
@@ -66,6 +71,24 @@ def _time_field(fmt, path="") -> tuple[str, float]:
         return "TimeMS", 1e-3
     raise InputError(f"message {fmt.name} has no TimeUS/TimeMS field", file=str(path),
                      field=fmt.name)
+
+
+def _heading_reference(params: dict) -> str:
+    """Which north ArduPilot's estimate refers heading to: true north when it applies a
+    declination (``COMPASS_DEC``, rad; set from the GPS position with
+    ``COMPASS_AUTODEC = 1``), magnetic north when the declination is 0."""
+    dec = params.get("COMPASS_DEC")
+    auto = params.get("COMPASS_AUTODEC")
+    if dec is None and auto is None:
+        return ("true north if ArduPilot had a declination (COMPASS_DEC, COMPASS_AUTODEC), "
+                "else magnetic north; the log records neither parameter")
+    deg = np.degrees(float(dec or 0.0))
+    if auto:
+        return (f"true north (ArduPilot sets the declination from its GPS position, "
+                f"COMPASS_AUTODEC = {auto:g}; COMPASS_DEC = {deg:.2f} deg in the log)")
+    if deg != 0.0:
+        return f"true north (ArduPilot applies COMPASS_DEC = {deg:.2f} deg)"
+    return "magnetic north (COMPASS_DEC = 0 and COMPASS_AUTODEC = 0: no declination applied)"
 
 
 def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: int = 0,
@@ -141,8 +164,10 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
             last = max(((log.offsets[i][-1], i) for i in range(len(log.offsets))
                         if log.offsets[i] and i in log.formats), default=None)
             left = 0  # bytes of an incomplete last message (the indexer counts it)
+            cut = None  # (its start, its size, bytes present)
             if last is not None and last[0] + log.formats[last[1]].len > log.data_len:
                 left = int(log.data_len - last[0])
+                cut = (int(last[0]), int(log.formats[last[1]].len), left)
             # bytes in messages the indexer found; fewer than the file holds: it skipped some
             covered = sum(len(log.offsets[i]) * log.formats[i].len
                           for i in range(len(log.offsets)) if log.offsets[i] and i in log.formats)
@@ -166,8 +191,6 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
                              "allow_corrupt=True to read what it recovered", file=str(path))
         assumed.append(f"pymavlink found corruption ({line.strip()}); what it recovered was "
                        "read (allow_corrupt=True).")
-    if left > 0:
-        assumed.append(f"The file ends inside a message: its last {left} bytes were not read.")
 
     def table(n: str, want_i: int | None, what: str) -> np.ndarray:
         a = np.frombuffer(rows[n], dtype=float).reshape(-1, len(cols[n])) if n in rows \
@@ -189,6 +212,7 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
     t, v = series(path, f"{imu_name}.GyrX..AccZ", imu[:, 0] * scale, imu[:, 1:7], width=6,
                   assumed=assumed)
     gyro, accel = frd_to_flu(v[:, :3]), frd_to_flu(v[:, 3:])
+    truncated = None if cut is None else cut_short(*cut, t, assumed)
     mag = t_m = None
     mag_desc = "none in the log"
     if mag_name in formats:
@@ -214,6 +238,7 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
             t_q, q_nf = series(path, onboard, t_q, q_nf, width=4, assumed=assumed)
             q_onboard = onboard_on(path, onboard, t_q, ned_frd_to_enu_flu(q_nf), t)
             onboard_desc += ", slerped onto the gyro time stamps"
+    heading_ref = _heading_reference(params) if q_onboard is not None else None
     assumed[:0] = [
         "ArduPilot body frame FRD converted to FLU ([x, -y, -z]); NED to ENU "
         "(q_ENU_FLU = q_ENU_NED * q_NED_FRD * q_FRD_FLU).",
@@ -228,7 +253,8 @@ def read_dataflash(path: str | os.PathLike, *, instance: int = 0, mag_instance: 
         "mag": mag_desc, "mag_instance": mag_instance, "onboard": onboard_desc,
         "available": {k: counts[k] for k in sorted(counts)
                       if k.startswith(("IMU", "MAG", "ATT", "AHR", "ACC", "GYR"))},
-        "params": len(params),
+        "params": len(params), "truncated": truncated,
+        "onboard_heading_reference": heading_ref,
     }
     names = {"t": f"{imu_name}.TimeUS", "gyro": f"{imu_name}.GyrX..Z",
              "accel": f"{imu_name}.AccX..Z", "mag": str(mag_name), "q_onboard": str(onboard)}

@@ -31,12 +31,13 @@ name                   shape       unit      meaning
                                              numeric or bool
 =====================  ==========  ========  ==========================================
 
-Root attributes: ``format = "gnomon-recording"``, ``format_version = 1``,
+Root attributes: ``format = "gnomon-recording"``, ``format_version = 2``,
 ``frames`` (a JSON object, e.g. ``{"reference": "ENU", "body": "sensor"}``),
 ``source`` (free text: where the data came from), ``mag_unit`` (kept also
-when there is no ``/mag``) and ``meta`` (a JSON object: what a reader assumed).
-Datasets ``t``, ``gyro``, ``accel`` carry a ``unit`` attribute (``s``, ``rad/s``,
-``m/s^2``) that the reader checks.
+when there is no ``/mag``) and ``meta`` (a JSON object: what a reader assumed,
+``meta["assumed"]``, and what it read). Datasets ``t``, ``gyro``, ``accel``,
+``accel_t``, ``mag_t`` carry a ``unit`` attribute (``s``, ``rad/s``, ``m/s^2``,
+``s``, ``s``) that the reader checks; ``mag`` carries its own unit.
 Optional datasets are absent, never empty. A reader of a later
 ``format_version`` than it knows refuses the file with a clear message.
 Errors name the file, the dataset and, for bad values, the row as the 0-based

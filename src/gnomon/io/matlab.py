@@ -55,10 +55,21 @@ _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def mat_version(head: bytes) -> str | None:
-    """``"5"`` or ``"7.3"`` from a file's first 128 bytes, or None (not a MAT file)."""
-    if not head.startswith(b"MATLAB "):
+    """``"5"`` or ``"7.3"`` from a file's first 128 bytes, or None (not a MAT file).
+
+    v7.3: the header text ``MATLAB 7.3`` (an HDF5 file with a 512-byte user block). v5 (and
+    v6, v7: the same level-5 format): what the MAT-file spec defines, not the text — bytes
+    124-125 hold the version 0x0100 and bytes 126-127 the endian indicator ``IM`` (written
+    little-endian) or ``MI`` (big-endian). The 116-byte text is free: MATLAB writes
+    ``MATLAB 5.0 MAT-file``, other programs their own (Qualisys QTM: ``QTM_ver ...``)."""
+    if head.startswith(b"MATLAB 7.3"):
+        return "7.3"
+    if len(head) < 128:
         return None
-    return "7.3" if head[7:10] == b"7.3" else "5"
+    order = {b"IM": "little", b"MI": "big"}.get(bytes(head[126:128]))
+    if order is not None and int.from_bytes(head[124:126], order) == 0x0100:
+        return "5"
+    return None
 
 
 def _load_v5(path: Path) -> dict:
@@ -149,7 +160,8 @@ def read_mat(path: str | os.PathLike, *, gyro_unit: str = "rad/s", accel_unit: s
         head = fh.read(128)
     version = mat_version(head)
     if version is None and not head.startswith(_HDF5_MAGIC):
-        raise InputError("not a MATLAB .mat file (no 'MATLAB' header)", file=str(path))
+        raise InputError("not a MATLAB .mat file (no v5 version 0x0100 with endian 'IM'/'MI' "
+                         "at bytes 124-127, no 'MATLAB 7.3' header, not HDF5)", file=str(path))
     d = _load_v73(path) if version in ("7.3", None) else _load_v5(path)
     if all(k in d for k in BROAD_FIELDS):
         rec = broad_from_fields(d, path)

@@ -26,12 +26,22 @@ iOS          ``gyroscope.txt`` t x y z             gyro (rad/s, raw: CoreMotion'
              ``accelerometer.txt`` t x y z         accel: in g with the opposite sign
                                                    (×−9.80665)
              ``magnetometer-calibrated.txt``       mag (µT; 5th column accuracy dropped;
-                                                   ``magnetometer.txt`` with ``mag="raw"``)
+                                                   rows repeating the previous values
+                                                   dropped, below; ``magnetometer.txt``
+                                                   with ``mag="raw"``)
              ``attitude.txt`` t w x y z            ``q_onboard``: CoreMotion's attitude
                                                    relative to x-north, z-up (NWU):
                                                    ``q_ENU_device = q_ENU_NWU ⊗ q``
              ``description.txt``                   ``[Time] BootTime`` (s)
 ===========  ====================================  =====================================
+
+iOS's ``magnetometer-calibrated.txt`` (CoreMotion's device-motion field) comes at the
+motion rate, ~94 Hz, but every other row (50-51 % of the rows in every iOS trial of the
+data set) repeats the previous row's three values exactly at a new time stamp: CoreMotion
+holds the last sample of a magnetometer running at ~47 Hz. Those rows are dropped (the
+first arrival kept; the count in ``meta["assumed"]``). No other file shows the pattern
+(repeats of the previous row in 0-0.2 % of the rows: a raw ``magnetometer.txt`` at 25 Hz
+quantised to 0.18 µT, the gyro, the accelerometer, the attitude), and none is changed.
 
 Time: ``timeAlignment.txt`` (s) aligns the phone to the motion-capture clock of the data
 set: Android ``t + alignment``, iOS ``t − BootTime + alignment`` (``align_time=False``
@@ -105,6 +115,20 @@ def onboard_gravity_deg(rec_q, t, accel_t, accel) -> float | None:
 
 
 # ---------------------------------------------------------------------- tyrex
+#: why iOS's calibrated magnetometer repeats: CoreMotion's device-motion field is
+#: delivered at the motion rate (~94 Hz) but updated at the sensor's (~47 Hz)
+_IOS_HELD = ("CoreMotion holds the last magnetometer sample: the field is delivered at the "
+             "device-motion rate but the sensor runs at about half of it")
+
+
+#: which north the phones' own estimate refers heading to in the tyrex data set
+_TYREX_NORTH = {
+    "android": "magnetic north (Android's rotation vector: y towards magnetic north)",
+    "ios": "magnetic north (the data set's iPhone app records CoreMotion's attitude in the "
+           "magnetic-north frame, as the data set's own code states)",
+}
+
+
 def tyrex_platform(path: Path) -> str | None:
     """``"android"`` / ``"ios"`` for a tyrex trial folder, else None."""
     if not path.is_dir() or not (path / "accelerometer.txt").is_file():
@@ -148,6 +172,24 @@ def _text_table(path: Path, min_cols: int) -> np.ndarray:
         raise InputError(f"expected at least {min_cols} columns, got {a.shape[1]}",
                          file=str(path))
     return a
+
+
+def _drop_held(t: np.ndarray, v: np.ndarray, field: str, assumed: list, why: str
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of one sensor (``t`` (N,) s, ``v`` (N, k)) without those whose values all equal
+    the previous kept row's: a sample held by the OS and logged again at a new time stamp
+    is not a new measurement (the first arrival is kept). The count dropped goes to
+    ``assumed`` with ``why``. Only for a file known to hold samples (see ``read_tyrex``):
+    a quantised sensor at rest repeats values legitimately."""
+    if t.size < 2:
+        return t, v
+    held = np.all(v[1:] == v[:-1], axis=1)  # runs of repeats equal the first of the run
+    if not held.any():
+        return t, v
+    keep = np.concatenate([[True], ~held])
+    assumed.append(f"{field}: {int(held.sum())} of {t.size} rows repeating the previous "
+                   f"row's values at a new time stamp dropped ({why}).")
+    return t[keep], v[keep]
 
 
 def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = "calibrated",
@@ -215,6 +257,8 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
     t_m = m = None
     if (path / mag_file).is_file():
         t_m, m = load(mag_file, 3)
+        if platform == "ios" and mag_file == "magnetometer-calibrated.txt":
+            t_m, m = _drop_held(t_m, m, mag_file, assumed, _IOS_HELD)
     else:
         assumed.append(f"No {mag_file}: no magnetometer.")
     q_onboard = None
@@ -236,6 +280,7 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
     meta = {"format": "tyrex", "platform": platform, "assumed": assumed, "device": device,
             "gyro": gyro if platform == "android" else "raw", "mag": mag,
             "onboard": onboard_desc, "time_offset_s": offset,
+            "onboard_heading_reference": None if q_onboard is None else _TYREX_NORTH[platform],
             "onboard_gravity_deg": onboard_gravity_deg(q_onboard, t, t_a, acc)}
     names = {"t": "gyroscope", "gyro": "gyroscope", "accel": "accelerometer.txt",
              "accel_t": "accelerometer.txt", "mag": mag_file, "mag_t": mag_file}
@@ -438,6 +483,10 @@ def read_sensorlogger(path: str | os.PathLike, *, mag: str = "calibrated",
     t_m, m = out.get("mag", (None, None))
     meta = {"format": "sensorlogger", "platform": platform, "standardised": standardised,
             "assumed": assumed, "device": device, "onboard": onboard_desc,
+            "onboard_heading_reference": None if q_onboard is None else (
+                "x-north of CoreMotion's reference frame: magnetic or true north as the app "
+                "requested it (the export does not say)" if platform == "ios" else
+                "magnetic north, if Orientation.csv is Android's rotation vector"),
             "time_origin_unix_ns": int(t0), "files": sorted(b.files),
             "onboard_gravity_deg": onboard_gravity_deg(q_onboard, t, t_a, acc)}
     names = {"t": "Gyroscope.csv", "gyro": "Gyroscope.csv", "accel": raw["accel"][2],

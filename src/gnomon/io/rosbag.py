@@ -17,7 +17,9 @@ the device's own estimate           ``sensor_msgs/Imu.orientation``       ``onbo
 
 The default topic is the ``Imu`` (``MagneticField``) topic with the most messages (ties:
 the first by name); ``meta["available"]`` lists every such topic with its message count
-and ``frame_id``. Time stamps are the messages' ``header.stamp`` (``stamps="header"``,
+and ``frame_id``. A ``MagneticField`` topic without messages gives no magnetometer, said
+in ``meta["assumed"]`` when it was picked by default and an :class:`InputError` when
+``mag_topic`` names it. Time stamps are the messages' ``header.stamp`` (``stamps="header"``,
 the default: when the sensor sampled) or the bag's receive times (``stamps="bag"``).
 
 Frames and units (REP-103, REP-145): ``sensor_msgs/Imu`` is in the IMU's own frame
@@ -174,9 +176,18 @@ def read_rosbag(path: str | os.PathLike, *, topic: str | None = None,
                        "slerped onto the gyro time stamps"
     mag = t_m = None
     imu_frame = sorted(frames_seen[imu_topic])
+    if m_topic is None and mag_topic is None:
+        assumed.append(f"No {MAG_TYPE} topic in the bag: the recording has no magnetometer.")
     if m_topic is not None:
         a = np.frombuffer(mag_rows, dtype=float).reshape(-1, 4)
-        if a.shape[0]:
+        if a.shape[0] == 0:
+            if mag_topic is not None:  # named by the user: not silently left out
+                raise InputError(f"topic {m_topic!r} has no messages", file=str(path),
+                                 field="mag_topic")
+            assumed.append(f"The magnetometer topic {m_topic!r} ({MAG_TYPE}) has no "
+                           "messages: the recording has no magnetometer.")
+            m_topic = None
+        else:
             t_m, mag = series(path, f"{m_topic}.magnetic_field", a[:, 0], a[:, 1:],
                               assumed=assumed)
             mag = mag * 1e6
@@ -194,6 +205,8 @@ def read_rosbag(path: str | os.PathLike, *, topic: str | None = None,
     meta = {
         "format": "rosbag", "assumed": assumed, "topic": imu_topic, "mag_topic": m_topic,
         "frame_id": imu_frame, "onboard": onboard_desc, "stamps": stamps,
+        "onboard_heading_reference": None if q_onboard is None else (
+            "the driver's: REP-103/145 fix ENU but not whether north is magnetic or true"),
         "available": {"imu": by_type[IMU_TYPE], "mag": by_type[MAG_TYPE],
                       "topics": {n: sorted({c.msgtype for c in cs}) for n, cs in conns.items()}},
         "bag_duration_s": duration_s,

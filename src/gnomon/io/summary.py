@@ -6,8 +6,10 @@ For each sensor (gyro, accelerometer, magnetometer): ``rate_hz`` (median), ``sam
 median intervals: how many and the longest, s) and where it came from (topic, message,
 file). Then the device's own estimate (``q_onboard``: what it is, how many gyro samples
 it covers), the truth when the log has one, the duration, the frames, the device, what
-else the file offers (``available``: topics and instances with message counts) and the
-reader's ``assumed`` sentences. The result is JSON-able.
+else the file offers (``available``: topics and instances with message counts), whether
+the file is cut short (``truncated``: ``{"at_byte", "message_bytes", "bytes_present",
+"data_up_to_s"}`` or None; ULog, DataFlash) and the reader's ``assumed`` sentences. The
+result is JSON-able.
 """
 
 from __future__ import annotations
@@ -56,5 +58,6 @@ def summarise(rec, path: str = "", fmt: str = "") -> dict:
         "onboard_gravity_deg": meta.get("onboard_gravity_deg"),
         "truth": series(rec.q_true, "q_true"),
         "device": meta.get("device"), "available": meta.get("available"),
+        "truncated": meta.get("truncated"),
         "assumed": list(meta.get("assumed", [])), "gap_factor": GAP_FACTOR,
     }

@@ -37,12 +37,18 @@ force (−g on FRD z at rest, +g on FLU z). Magnetometer gauss → µT (×100). 
 (``sensor_combined`` carries the latest accelerometer/magnetometer sample in every
 message); ``timestamp_sample`` is used when the topic has it and it increases, else
 ``timestamp``. ``vehicle_attitude`` is slerped onto the gyro time stamps (a comparison
-series); its heading refers to EKF2's north (true north when EKF2 has a declination).
+series); its heading refers to true north (EKF2 applies the magnetic declination, from
+its world magnetic model at the GPS position or ``EKF2_MAG_DECL``): said, with the log's
+declination parameters, in ``meta["onboard_heading_reference"]``.
 
 Errors: a file pyulog cannot parse, or one where it detected corruption (it skips bytes
 to resynchronise) is an :class:`~gnomon.errors.InputError` (``allow_corrupt=True`` reads
 what pyulog recovered and says so in ``meta["assumed"]``). A file cut off at the end reads
-up to its last complete message (pyulog's behaviour; a flight log is often cut at power-off).
+up to its last complete message (pyulog's behaviour; a flight log is often cut at
+power-off) and says so: pyulog stops silently at a message that runs past the end of the
+file, the reader watches its reads and puts where the file was cut and up to which time
+stamp the data go in ``meta["assumed"]`` and ``meta["truncated"]`` (``gnomon inspect``
+prints it). A file cut exactly between two messages cannot be told from a complete one.
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ from gnomon.errors import InputError
 from gnomon.io._common import (
     as_path,
     build,
+    cut_short,
     ned_frd_to_enu_flu,
     onboard_on,
     optional_import,
@@ -103,6 +110,34 @@ def _check_definitions(path) -> None:
         pos += 3 + n
 
 
+class _CutWatch:
+    """The ``.ulg`` file as pyulog reads it, noting where a read came back short: pyulog
+    stops silently at a message cut off by the end of the file (``len(data) <
+    msg_size``), this says where. A 3-byte header read that finds nothing is the clean end
+    (a file cut exactly between two messages cannot be told from a complete one)."""
+
+    def __init__(self, fh):
+        self._fh = fh
+        self.cut: tuple[int, int, int] | None = None  # (message start, its size, present)
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._fh.read(n)
+        if len(data) < n and not (n == 3 and not data):
+            header = 0 if n == 3 else 3  # a payload read: its 3-byte header came before
+            start = self._fh.tell() - len(data) - header
+            self.cut = (start, n + header, len(data) + header)
+        return data
+
+    def seek(self, *args):
+        return self._fh.seek(*args)
+
+    def tell(self):
+        return self._fh.tell()
+
+    def close(self):
+        self._fh.close()
+
+
 _FLU = (1.0, -1.0, -1.0)  # FRD -> FLU, applied while the columns are copied
 
 
@@ -132,6 +167,21 @@ def _stamps(d: dict, assumed: list, topic: str) -> np.ndarray:
     if ts is not None:
         assumed.append(f"{topic}: timestamp_sample does not increase; timestamp used.")
     return d["timestamp"].astype(np.float64) * 1e-6
+
+
+def _heading_reference(params: dict) -> str:
+    """Which north ``vehicle_attitude``'s heading refers to, with the log's parameters."""
+    if "EKF2_MAG_DECL" in params:
+        return (f"true north (PX4's EKF2 applies the magnetic declination; EKF2_MAG_DECL = "
+                f"{float(params['EKF2_MAG_DECL']):.2f} deg, EKF2_DECL_TYPE = "
+                f"{params.get('EKF2_DECL_TYPE', '?')} in the log)")
+    if "ATT_MAG_DECL" in params:
+        return (f"true north (PX4's attitude estimator applies the magnetic declination; "
+                f"ATT_MAG_DECL = {float(params['ATT_MAG_DECL']):.2f} deg, ATT_MAG_DECL_A = "
+                f"{params.get('ATT_MAG_DECL_A', '?')} in the log)")
+    return ("true north (PX4's EKF2 applies the magnetic declination, from its world "
+            "magnetic model at the GPS position or EKF2_MAG_DECL; the log records no "
+            "parameter)")
 
 
 def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: int = 0,
@@ -165,22 +215,23 @@ def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: in
                              file=str(path), field=name)
     _check_definitions(path)
     try:
-        with quiet() as printed:
-            ulog = pyulog.ULog(str(path), list(dict.fromkeys(IMU_TOPICS + MAG_TOPICS + _OTHER)),
+        with quiet() as printed, open(path, "rb") as fh:
+            watch = _CutWatch(fh)
+            ulog = pyulog.ULog(watch, list(dict.fromkeys(IMU_TOPICS + MAG_TOPICS + _OTHER)),
                                True)
     except Exception as err:  # pyulog's failures are not enumerated: the file is unreadable
         raise InputError(f"cannot read as ULog (pyulog: {type(err).__name__}: {err})",
                          file=str(path)) from None
     try:
         return _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onboard,
-                        allow_corrupt)
+                        allow_corrupt, watch.cut)
     except (KeyError, IndexError) as err:  # a field the format definitions should have
         raise InputError(f"the file's format definitions lack {err} (corrupted?)",
                          file=str(path)) from None
 
 
 def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onboard,
-             allow_corrupt) -> Recording:
+             allow_corrupt, cut) -> Recording:
     assumed: list[str] = []
     if ulog.file_corruption:
         if not allow_corrupt:
@@ -337,7 +388,10 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
         assumed.append("vehicle_attitude_groundtruth (the simulator's truth) is q_true, "
                        "slerped onto the gyro time stamps.")
 
+    truncated = None if cut is None else cut_short(*cut, t_g, assumed)
     info = ulog.msg_info_dict
+    heading_ref = _heading_reference(ulog.initial_parameters) if q_onboard is not None \
+        else None
     assumed[:0] = [
         "PX4 body frame FRD converted to FLU ([x, -y, -z]); NED to ENU "
         "(q_ENU_FLU = q_ENU_NED * q_NED_FRD * q_FRD_FLU).",
@@ -351,7 +405,8 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
                    if k in info},
         "imu": imu_desc, "topic": topic, "instance": int(instance), "mag": mag_desc,
         "mag_topic": mag_topic, "mag_instance": int(mag_instance), "onboard": onboard_desc,
-        "available": available, "dropouts": dropouts,
+        "onboard_heading_reference": heading_ref,
+        "available": available, "dropouts": dropouts, "truncated": truncated,
     }
     return build(path, names, t=t_g, gyro=gyro, accel=accel,
                  accel_t=t_a, mag=mag, mag_t=t_m, mag_unit="uT", q_onboard=q_onboard,

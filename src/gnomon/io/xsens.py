@@ -245,7 +245,10 @@ def read_xsens(path: str | os.PathLike, *, gyro_unit: str = "rad/s", mag_au_uT: 
             "device": {k: info[k] for k in info if k in ("DeviceId", "ProductCode",
                                                           "Firmware Version", "Filter Profile",
                                                           "Update Rate", "MT Manager version")},
-            "onboard": onboard_desc}
+            "onboard": onboard_desc,
+            "onboard_heading_reference": None if q_onboard is None else (
+                "magnetic north (the MTi's default; true north only if a declination was "
+                "set in the device)")}
     return build(path, {"t": tname, "gyro": "Gyr_X", "accel": "Acc_X", "mag": "Mag_X",
                         "q_onboard": "Quat_q0"},
                  t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m, mag_unit="uT",
