@@ -492,7 +492,7 @@ class Eskf(Estimator):
 
         self.check_inputs(rec)
         p = self.params
-        mag_T = rec.mag_tesla
+        to_tesla = MAG_UNITS_TO_TESLA[rec.mag_unit]
         dt = np.empty(len(rec))
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
@@ -501,14 +501,15 @@ class Eskf(Estimator):
             n_acc = max(1, int(np.searchsorted(rec.times("accel"), t0, side="right")))
             n_mag = max(1, int(np.searchsorted(rec.times("mag"), t0, side="right")))
             n = min(n_acc, n_mag)  # the first samples of each (pairs for the TRIAD)
-            self._init_state(rec.accel[:n], mag_T[:n])
+            self._init_state(rec.accel[:n], rec.mag[:n] * to_tesla)
         # each sensor at its own rate: a correction needs a new accelerometer and a new
         # magnetometer sample in the same row (the model and its gates use both); other
         # rows only predict
-        mag_base = rec.on_time_base("mag") * MAG_UNITS_TO_TESLA[rec.mag_unit]
+        mag = rec.on_time_base("mag") * to_tesla  # a new array: scaled in place below
+        mag /= self.b0_mag
         inputs = kern.Inputs(np.ascontiguousarray(rec.gyro, float),
                              np.ascontiguousarray(rec.on_time_base("accel"), float),
-                             np.ascontiguousarray(mag_base / self.b0_mag), dt)
+                             np.ascontiguousarray(mag), dt)
         out = kern.new_outputs(len(rec))
         kern.run_batch(inputs, self.state, kern.coefficients(p), out)
         self.t_last = float(rec.t[-1])

@@ -83,6 +83,8 @@ MODE_R6 = 6
 #: |sin I| at most for the reference field (inclination below 87.4 deg): nearer the pole
 #: (or with |a| > g making a·m/(g|m|) exceed 1) H = sqrt(1 - s²) would vanish or be NaN
 MAX_ABS_DIP = 0.999
+#: floats of scratch for the one-sensor correction's work matrices (``correct_rows``)
+SCRATCH = 198
 
 # Every phase is inlined into the loop by numba itself (``inline="always"``): left to
 # LLVM's inliner, the same kernel ran 15-20 % slower with r = 3 and r = 6 and 2x slower
@@ -180,20 +182,13 @@ class Work(NamedTuple):
     D1: np.ndarray  #: (6, 3) attitude columns of D (first r rows)
     Rd: np.ndarray  #: (6,) diagonal of R (first r entries)
     dx: np.ndarray  #: (6,) error estimate [δe; δb]
-    PDt: np.ndarray  #: (6, 6) scratch of the one-sensor correction (``gain``, ``joseph``)
-    S: np.ndarray    #: (6, 6)
-    K: np.ndarray    #: (6, 6)
-    L: np.ndarray    #: (6, 3)
-    M: np.ndarray    #: (6, 6)
-    G: np.ndarray    #: (6, 6)
 
 
 @njit(**_JIT)
 def workspace():
     """A ``Work`` of fresh scratch arrays."""
     return Work(np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(6),
-                np.empty((6, 3)), np.empty(6), np.empty(6), np.empty((6, 6)), np.empty((6, 6)),
-                np.empty((6, 6)), np.empty((6, 3)), np.empty((6, 6)), np.empty((6, 6)))
+                np.empty((6, 3)), np.empty(6), np.empty(6))
 
 
 # ---------------------------------------------------------------- phase 1: gyro prediction
@@ -477,15 +472,23 @@ _joseph_loops = njit(**_JIT)(joseph)
 
 # ---------------------------------------------------------------- step and batch
 @njit(inline="always", **_JIT)
-def correct_rows(s, r, y, D1, Rd, w):
+def correct_rows(s, r, y, D1, Rd, dx, scratch):
     """Kalman correction with the first ``r`` rows of ``y``, ``D1``, ``Rd`` (any ``r``: the
-    loop forms of ``gain`` and ``joseph``, compiled), P mirrored, then ``inject``."""
-    _gain_loops(s.P, D1, Rd, r, w.PDt, w.S, w.K)
-    _joseph_loops(s.P, D1, Rd, y, w.K, r, w.L, w.M, w.G, w.dx)
+    loop forms of ``gain`` and ``joseph``, compiled), P mirrored, then ``inject``.
+    ``scratch``: (SCRATCH,) floats for their work matrices (one array: the loop that
+    passes it along stays as lean as the single-rate loop)."""
+    PDt = scratch[0:36].reshape(6, 6)
+    S = scratch[36:72].reshape(6, 6)
+    K = scratch[72:108].reshape(6, 6)
+    L = scratch[108:126].reshape(6, 3)
+    M = scratch[126:162].reshape(6, 6)
+    G = scratch[162:198].reshape(6, 6)
+    _gain_loops(s.P, D1, Rd, r, PDt, S, K)
+    _joseph_loops(s.P, D1, Rd, y, K, r, L, M, G, dx)
     for i in range(6):
         for j in range(i + 1, 6):
             s.P[j, i] = s.P[i, j]
-    inject(s.q, s.bias, w.dx)
+    inject(s.q, s.bias, dx)
 
 
 @njit(inline="always", **_JIT)
@@ -524,56 +527,61 @@ def one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w):
 
 
 @njit(**_JIT)
-def _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w):
+def _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w, scratch):
     """``one_sensor`` then ``correct_rows``: a function of its own, called (not inlined)
     from the loop, which it would slow by a sixth with its size for rows that only a
     multi-rate recording has. Returns the rows used."""
     r = one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w)
     if new_a:
         s.since_acc_s = 0.0
-    correct_rows(s, r, w.y, w.D1, w.Rd, w)
+    correct_rows(s, r, w.y, w.D1, w.Rd, w.dx, scratch)
     return r
 
 
 @njit(inline="always", **_JIT)
-def step(s, c, mode, inputs, k, w):
+def step(s, c, mode, inputs, k, w, since, scratch):
     """Sample ``k`` of ``inputs`` on the record ``s`` (``w``: a ``Work``; ``mode`` is
-    ``c.mode``, a constant in each of ``run_batch``'s loops). Returns how many
-    measurement rows corrected the state: 0 when neither sensor has a usable new sample
-    (a zero vector, or NaN: no sample in this row), r when both do, fewer when only one
-    does (``one_sensor``); ``w.y`` holds those rows."""
+    ``c.mode``, a constant in each of ``run_batch``'s loops; ``since``: the time since the
+    accelerometer's previous sample, kept in a register by the loop rather than in
+    ``s.since_acc_s``). Returns ``(rows, since)``: how many measurement rows corrected
+    the state: 0 when neither sensor has a usable new sample (a zero vector, or NaN: no
+    sample in this row), r when both do, fewer when only one does (``one_sensor``);
+    ``w.y`` holds those rows."""
     dt = inputs.dt[k]
     predict(s, c, inputs.gyro[k, 0], inputs.gyro[k, 1], inputs.gyro[k, 2], dt, w.A, w.T, w.U)
     if mode == MODE_PREDICT_ONLY:
-        return 0
+        return 0, since
     ax, ay, az = inputs.accel[k, 0], inputs.accel[k, 1], inputs.accel[k, 2]
     mx, my, mz = inputs.mag[k, 0], inputs.mag[k, 1], inputs.mag[k, 2]
     na = math.sqrt(ax * ax + ay * ay + az * az)
     nm = math.sqrt(mx * mx + my * my + mz * mz)
-    s.since_acc_s += dt
+    since += dt
     new_a, new_m = na > 0.0, nm > 0.0  # False for a zero vector and for NaN (no sample)
     if not (new_a and new_m):
         if not (new_a or new_m):
-            return 0
-        return _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w)
+            return 0, since
+        s.since_acc_s = since
+        r = _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w,
+                                   scratch)
+        return r, s.since_acc_s
     fa, fm, mag_h, mag_z = reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt)
     if c.acc_lp_tau > 0.0:
-        ax, ay, az = accel_lowpass(s, c, ax, ay, az, s.since_acc_s)
-    s.since_acc_s = 0.0
+        ax, ay, az = accel_lowpass(s, c, ax, ay, az, since)
     if mode == MODE_R6:
         measure_r6(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
     else:
         measure_r3(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
     correct(s, mode, w.y, w.D1, w.Rd, w.dx)
-    return 6 if mode == MODE_R6 else 3
+    return (6 if mode == MODE_R6 else 3), 0.0
 
 
 @njit(inline="always", **_JIT)
-def _loop(inputs, s, c, outputs, w, mode):
+def _loop(inputs, s, c, outputs, w, mode, scratch):
     """The loop over samples for one ``mode`` (a constant: its branches fold away)."""
     r_full = 6 if mode == MODE_R6 else 3
+    since = s.since_acc_s
     for k in range(inputs.dt.shape[0]):
-        r = step(s, c, mode, inputs, k, w)
+        r, since = step(s, c, mode, inputs, k, w, since, scratch)
         outputs.skipped[k] = mode != MODE_PREDICT_ONLY and r < r_full
         if r == r_full:
             for j in range(r):
@@ -584,6 +592,7 @@ def _loop(inputs, s, c, outputs, w, mode):
             outputs.bias[k, j] = s.bias[j]
         for j in range(6):
             outputs.cov_diag[k, j] = s.P[j, j]
+    s.since_acc_s = since
 
 
 @njit(**_JIT)
@@ -592,11 +601,14 @@ def run_batch(inputs, state, c, outputs):
     array of one element, updated in place) with ``c`` (``Coefficients``); writes
     ``outputs`` (``Outputs``, N rows). One loop per mode, each compiled with the mode a
     constant (as if written three times)."""
-    s = state[0]
+    local = state.copy()  # a fresh array: nothing else can alias the state in the loop
+    s = local[0]
     w = workspace()
+    scratch = np.empty(SCRATCH)
     if c.mode == MODE_R6:
-        _loop(inputs, s, c, outputs, w, MODE_R6)
+        _loop(inputs, s, c, outputs, w, MODE_R6, scratch)
     elif c.mode == MODE_R3:
-        _loop(inputs, s, c, outputs, w, MODE_R3)
+        _loop(inputs, s, c, outputs, w, MODE_R3, scratch)
     else:
-        _loop(inputs, s, c, outputs, w, MODE_PREDICT_ONLY)
+        _loop(inputs, s, c, outputs, w, MODE_PREDICT_ONLY, scratch)
+    state[0] = local[0]
