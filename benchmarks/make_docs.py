@@ -56,6 +56,18 @@ def broad_tables(res: dict) -> str:
     return "\n".join(lines)
 
 
+def readers_section() -> str:
+    """The "Reading logs" section from the committed ``docs/figures/readers_speed.json``
+    (``benchmarks/bench_readers.py`` measures it; too long to run here)."""
+    path = ROOT / "docs" / "figures" / "readers_speed.json"
+    if not path.exists():
+        return ""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_readers import markdown_section
+
+    return "\n" + markdown_section(json.loads(path.read_text()))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
@@ -94,7 +106,7 @@ Monte Carlo run each. Run it yourself: `gnomon bench` (a few minutes; `--quick` 
 200,000 samples).
 
 {speed}
-"""
+{readers_section()}"""
     (ROOT / "docs" / "benchmarks.md").write_text(page)
     readme = (ROOT / "README.md").read_text()
     mean_table = broad_tables(broad).split("\n\n")[0]

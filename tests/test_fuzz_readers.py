@@ -232,6 +232,51 @@ def test_truncated_ulog_at_every_kind_of_cut(tmp_path):
             assert rec.meta["truncated"]["at_byte"] == boundary
 
 
+def test_ulog_cut_seen_near_the_end_as_when_watching_every_read(tmp_path, monkeypatch):
+    """The ULog reader watches pyulog's reads only within ``_TAIL`` bytes of the end of the
+    file (free on long logs): the same cut record and errors as watching every read, for
+    cuts and damaged bytes anywhere (small buffers: many fills before the end)."""
+    import random
+
+    from gnomon.io import ulog
+
+    raw = (DATA / "logs" / "px4" / "sample_log_small_imu.ulg").read_bytes()
+    rng = random.Random(7)
+    tail = ulog._TAIL
+    monkeypatch.setattr(ulog, "_BUFFER", 4096)
+    path = tmp_path / "cut.ulg"
+    for k in range(40):
+        data = bytearray(raw[: rng.randrange(tail + 1, len(raw) + 1)])
+        for _ in range(k % 3):  # damaged bytes (message sizes up to 64 KiB) in a third
+            data[rng.randrange(16, len(data))] = rng.randrange(256)
+        path.write_bytes(bytes(data))
+        seen = []
+        for watched in (tail, len(data)):  # near the end / every read
+            monkeypatch.setattr(ulog, "_TAIL", watched)
+            try:
+                seen.append(read(path, allow_corrupt=True).meta["truncated"])
+            except InputError as e:
+                seen.append(str(e))
+        assert seen[0] == seen[1], (len(data), k)
+        assert k % 3 or seen[0] is None or isinstance(seen[0], str) or (
+            seen[0]["at_byte"] + seen[0]["bytes_present"] == len(data))
+
+
+def test_ulog_cut_watch_after_a_seek_near_the_end(tmp_path):
+    """A seek to within ``_TAIL`` bytes of the end starts the watch (the read after it may
+    run past the end before any buffer fill reports where it got to)."""
+    from gnomon.io.ulog import _TAIL, _CutWatch
+
+    path = tmp_path / "f.ulg"
+    path.write_bytes(bytes(4 * _TAIL))
+    with _CutWatch(path) as watch:
+        assert watch.read(3) == bytes(3) and watch.cut is None
+        watch.seek(4 * _TAIL - 7)  # (a message's 3-byte header before it)
+        assert watch.read(20) == bytes(7)
+        assert watch.cut == (4 * _TAIL - 10, 23, 10)  # (message start, size, present)
+        assert watch.read(3) == b"" and watch.cut == (4 * _TAIL - 10, 23, 10)
+
+
 @pytest.mark.parametrize("kind", LOG_KINDS)
 def test_logs_with_the_wrong_format_forced(tmp_path, log_files, kind):
     """A file read as every other format: one line, never another exception."""

@@ -46,13 +46,15 @@ to resynchronise) is an :class:`~gnomon.errors.InputError` (``allow_corrupt=True
 what pyulog recovered and says so in ``meta["assumed"]``). A file cut off at the end reads
 up to its last complete message (pyulog's behaviour; a flight log is often cut at
 power-off) and says so: pyulog stops silently at a message that runs past the end of the
-file, the reader watches its reads and puts where the file was cut and up to which time
-stamp the data go in ``meta["assumed"]`` and ``meta["truncated"]`` (``gnomon inspect``
-prints it). A file cut exactly between two messages cannot be told from a complete one.
+file, the reader watches its reads near the end of the file (:class:`_CutWatch`, free on
+long logs) and puts where the file was cut and up to which time stamp the data go in
+``meta["assumed"]`` and ``meta["truncated"]`` (``gnomon inspect`` prints it). A file cut
+exactly between two messages cannot be told from a complete one.
 """
 
 from __future__ import annotations
 
+import io
 import os
 
 import numpy as np
@@ -110,17 +112,36 @@ def _check_definitions(path) -> None:
         pos += 3 + n
 
 
+_TAIL = 1 << 16  # >= pyulog's longest read (a message payload: its size is 16 bits)
+_BUFFER = 1 << 16  # the buffer pyulog's reads are served from
+
+
 class _CutWatch:
     """The ``.ulg`` file as pyulog reads it, noting where a read came back short: pyulog
     stops silently at a message cut off by the end of the file (``len(data) <
     msg_size``), this says where. A 3-byte header read that finds nothing is the clean end
-    (a file cut exactly between two messages cannot be told from a complete one)."""
+    (a file cut exactly between two messages cannot be told from a complete one).
 
-    def __init__(self, fh):
-        self._fh = fh
+    Free on long logs (pyulog reads twice per message): ``read`` is the buffered file's own
+    (C) method until a buffer fill or a ``seek`` gets within ``_TAIL`` bytes of the end of
+    the file, and this wrapper's ``_watched`` from then on. A read starting further than
+    ``_TAIL`` bytes from the end cannot come back short (no pyulog read is longer: a
+    message's size is 16 bits), so every short read is seen, as when watching them all."""
+
+    def __init__(self, path):
+        self._raw = raw = _Raw(path, self)
+        self._fh = io.BufferedReader(raw, _BUFFER)
+        self._size = os.fstat(raw.fileno()).st_size
         self.cut: tuple[int, int, int] | None = None  # (message start, its size, present)
+        self.read = self._fh.read  # pyulog looks ``read`` up at every call
+        self.tell = self._fh.tell
+        self._near(0)
 
-    def read(self, n: int = -1) -> bytes:
+    def _near(self, pos: int) -> None:
+        if self._size - pos <= _TAIL:
+            self.read = self._watched
+
+    def _watched(self, n: int = -1) -> bytes:
         data = self._fh.read(n)
         if len(data) < n and not (n == 3 and not data):
             header = 0 if n == 3 else 3  # a payload read: its 3-byte header came before
@@ -128,14 +149,34 @@ class _CutWatch:
             self.cut = (start, n + header, len(data) + header)
         return data
 
-    def seek(self, *args):
-        return self._fh.seek(*args)
+    def seek(self, *args) -> int:
+        pos = self._fh.seek(*args)
+        self._near(pos)
+        return pos
 
-    def tell(self):
-        return self._fh.tell()
-
-    def close(self):
+    def close(self) -> None:
         self._fh.close()
+        self._raw._watch = None  # (no cycle left)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class _Raw(io.FileIO):
+    """The raw file under :class:`_CutWatch`'s buffer: each fill tells where it got to."""
+
+    def __init__(self, path, watch: _CutWatch):
+        super().__init__(path, "rb")
+        self._watch = watch
+
+    def readinto(self, b) -> int | None:
+        n = super().readinto(b)
+        if self._watch is not None:
+            self._watch._near(self.tell())
+        return n
 
 
 _FLU = (1.0, -1.0, -1.0)  # FRD -> FLU, applied while the columns are copied
@@ -143,20 +184,45 @@ _FLU = (1.0, -1.0, -1.0)  # FRD -> FLU, applied while the columns are copied
 
 def _vec(d: dict, names, scale=None) -> np.ndarray:
     """Fields ``names`` of a topic as one (N, k) float array, each column times ``scale``
-    (one pass, no temporaries: long logs)."""
-    out = np.empty((d[names[0]].size, len(names)))
+    (one pass, no temporaries: long logs). pyulog's columns are views of one record array:
+    fields of one float type side by side in the record are read as one (N, k) view."""
+    cols = [d[n] for n in names]
+    out = np.empty((cols[0].size, len(names)))
+    block = _block(cols)
     with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf are refused by series()
-        for j, n in enumerate(names):
-            np.multiply(d[n], 1.0 if scale is None else scale[j], out=out[:, j],
+        if block is not None:  # the same arithmetic as below (in the fields' type)
+            np.multiply(block, np.ones(len(names), block.dtype) if scale is None
+                        else np.array(scale, block.dtype), out=out, casting="unsafe")
+            return out
+        for j, c in enumerate(cols):
+            np.multiply(c, 1.0 if scale is None else scale[j], out=out[:, j],
                         casting="unsafe")
     return out
 
 
-def _valid(rel: np.ndarray):
-    """Rows whose relative time stamp is valid: a boolean mask, or ``slice(None)`` when all
-    are (no copies on long logs)."""
+def _block(cols: list):
+    """``cols`` (views of one record array: fields of one float type side by side) as one
+    (N, k) strided view; None when they are not."""
+    first = cols[0]
+    ptr, size = first.__array_interface__["data"][0], first.dtype.itemsize
+    if first.ndim != 1 or first.dtype.kind != "f" or first.base is None or any(
+            c.base is not first.base or c.dtype != first.dtype or c.shape != first.shape
+            or c.strides != first.strides or c.__array_interface__["data"][0] != ptr + j * size
+            for j, c in enumerate(cols)):
+        return None
+    return np.lib.stride_tricks.as_strided(first, (first.size, len(cols)),
+                                           (first.strides[0], size), writeable=False)
+
+
+def _shifted(d: dict, rel, t=None):
+    """``timestamp + rel`` (µs, ``rel`` a ``*_timestamp_relative`` field or None) in s and
+    the rows where ``rel`` is valid (a boolean mask, or ``slice(None)`` when all are: no
+    copies on long logs); ``t`` (``timestamp`` in s) itself when every ``rel`` is 0."""
+    if rel is None or not rel.any():
+        return (d["timestamp"].astype(np.int64) * 1e-6 if t is None else t), slice(None)
     bad = rel == _INVALID_RELATIVE
-    return slice(None) if not bad.any() else ~bad
+    ok = slice(None) if not bad.any() else ~bad
+    return (d["timestamp"][ok].astype(np.int64) + rel[ok].astype(np.int64)) * 1e-6, ok
 
 
 def _stamps(d: dict, assumed: list, topic: str) -> np.ndarray:
@@ -215,8 +281,7 @@ def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: in
                              file=str(path), field=name)
     _check_definitions(path)
     try:
-        with quiet() as printed, open(path, "rb") as fh:
-            watch = _CutWatch(fh)
+        with quiet() as printed, _CutWatch(path) as watch:
             ulog = pyulog.ULog(watch, list(dict.fromkeys(IMU_TOPICS + MAG_TOPICS + _OTHER)),
                                True)
     except Exception as err:  # pyulog's failures are not enumerated: the file is unreadable
@@ -270,16 +335,15 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
     names = {"t": f"{topic}.timestamp"}
     if topic == "sensor_combined":
         d = get(topic, 0, "IMU")
-        t_us = d["timestamp"].astype(np.int64)
-        t_g, gyro = series(path, "sensor_combined.gyro_rad", t_us * 1e-6,
+        t = d["timestamp"].astype(np.int64) * 1e-6
+        t_g, gyro = series(path, "sensor_combined.gyro_rad", t,
                            _vec(d, [f"gyro_rad[{k}]" for k in range(3)], _FLU), assumed=assumed)
-        rel = d.get("accelerometer_timestamp_relative")
-        rel = np.zeros(t_us.size, np.int64) if rel is None else rel.astype(np.int64)
-        ok = _valid(rel)
-        t_a, accel = series(path, "sensor_combined.accelerometer_m_s2",
-                            (t_us[ok] + rel[ok]) * 1e-6,
+        t_acc, ok = _shifted(d, d.get("accelerometer_timestamp_relative"), t)
+        del t
+        t_a, accel = series(path, "sensor_combined.accelerometer_m_s2", t_acc,
                             _vec(d, [f"accelerometer_m_s2[{k}]" for k in range(3)], _FLU)[ok],
                             assumed=assumed)
+        del t_acc
         names.update(gyro="sensor_combined.gyro_rad", accel="sensor_combined.accelerometer_m_s2")
         imu_desc = "sensor_combined (gyro at timestamp, accelerometer at timestamp + " \
                    "accelerometer_timestamp_relative)"
@@ -345,12 +409,11 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
             raise InputError("this firmware's sensor_combined has no magnetometer_ga; use "
                              "vehicle_magnetometer or sensor_mag", file=str(path),
                              field="mag_topic")
-        rel = d["magnetometer_timestamp_relative"].astype(np.int64)
-        ok = _valid(rel)
-        t_m, mag = series(path, "sensor_combined.magnetometer_ga",
-                          (d["timestamp"].astype(np.int64)[ok] + rel[ok]) * 1e-6,
+        t_mag, ok = _shifted(d, d["magnetometer_timestamp_relative"])
+        t_m, mag = series(path, "sensor_combined.magnetometer_ga", t_mag,
                           _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG)[ok],
                           assumed=assumed)
+        del t_mag
         mag_desc = "sensor_combined.magnetometer_ga (older firmware) at timestamp + " \
                    "magnetometer_timestamp_relative"
     elif mag_topic == "sensor_mag":
@@ -377,17 +440,18 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
         d.data = {}
     data.clear()
     if "vehicle_attitude" in estimates:
-        t_q, q = estimates["vehicle_attitude"]
+        t_q, q = estimates.pop("vehicle_attitude")
         q_onboard = onboard_on(path, "vehicle_attitude", t_q, ned_frd_to_enu_flu(q), t_g)
         onboard_desc = "vehicle_attitude (PX4's estimator, EKF2 on current firmware), " \
                        "slerped onto the gyro time stamps"
     if "vehicle_attitude_groundtruth" in estimates:
-        t_q, q = estimates["vehicle_attitude_groundtruth"]
+        t_q, q = estimates.pop("vehicle_attitude_groundtruth")
         q_true = onboard_on(path, "vehicle_attitude_groundtruth", t_q, ned_frd_to_enu_flu(q),
                             t_g)
         assumed.append("vehicle_attitude_groundtruth (the simulator's truth) is q_true, "
                        "slerped onto the gyro time stamps.")
 
+    t_q = q = None  # (the estimates' own samples are not kept)
     truncated = None if cut is None else cut_short(*cut, t_g, assumed)
     info = ulog.msg_info_dict
     heading_ref = _heading_reference(ulog.initial_parameters) if q_onboard is not None \
