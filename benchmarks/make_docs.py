@@ -3,11 +3,16 @@
     python benchmarks/make_docs.py [--broad DIR] [--quick]
 
 Runs ``gnomon benchmark broad --json`` (the full BROAD trials when found, see
-``gnomon.datasets.broad_dir``; the bundled excerpt otherwise) and
-``gnomon bench --json``, then writes ``docs/benchmarks.md`` and replaces the
+``gnomon.datasets.broad_dir``; the bundled excerpt otherwise),
+``gnomon benchmark tyrex --json`` with ``--mag calibrated`` and ``--mag raw`` (when the
+tyrex data set is found, ``gnomon.datasets.tyrex_dir``; the section is kept as it is
+otherwise) and ``gnomon bench --json``, then writes ``docs/benchmarks.md`` and replaces the
 speed and accuracy tables in ``README.md`` between the markers
 ``<!-- bench:start/end -->`` and ``<!-- broad:start/end -->``. Nothing in those
 tables is typed by hand.
+
+``tyrex_section(calibrated, raw, data_name)`` renders the smartphone section from the two
+JSON results (between ``<!-- tyrex:start -->`` and ``<!-- tyrex:end -->``).
 """
 
 from __future__ import annotations
@@ -68,6 +73,123 @@ def readers_section() -> str:
     return "\n" + markdown_section(json.loads(path.read_text()))
 
 
+def _mean_table(res: dict) -> list[str]:
+    lines = ["| method | total (deg) | heading (deg) | inclination (deg) | trials |",
+             "| --- | ---: | ---: | ---: | ---: |"]
+    for m in sorted(res["mean"], key=lambda m: res["mean"][m]["total_deg"]):
+        v = res["mean"][m]
+        lines.append(f"| {m} | {v['total_deg']:.2f} | {v['heading_deg']:.2f} | "
+                     f"{v['inclination_deg']:.2f} | {v['trials']} |")
+    return lines
+
+
+def _group_table(res: dict, kind: str, key: str = "total_deg") -> list[str]:
+    values = sorted({g.split(":", 1)[1] for m in res["groups"] for g in res["groups"][m]
+                     if g.startswith(kind + ":")})
+    methods = sorted(res["mean"], key=lambda m: res["mean"][m]["total_deg"])
+    lines = [f"| method | {' | '.join(values)} |", "| --- |" + " ---: |" * len(values)]
+    for m in methods:
+        row = res["groups"].get(m, {})
+        lines.append(f"| {m} | " + " | ".join(
+            f"{row.get(f'{kind}:{v}', {}).get(key, float('nan')):.2f}" for v in values) + " |")
+    return lines
+
+
+def tyrex_section(cal: dict, raw: dict | None, data_name: str) -> str:
+    """The "Smartphones (tyrex)" section from ``gnomon benchmark tyrex --json`` results
+    (``--mag calibrated`` and, optionally, ``--mag raw``)."""
+    n = len({r["trial"] for r in cal["trials"]})
+    st = cal["alignment_stats"]
+
+    def rng(d, scale="{:.1f}"):
+        return (f"{scale.format(d['min'])} to {scale.format(d['max'])} (median "
+                f"{scale.format(d['median'])})")
+
+    lines = [
+        "## Smartphones (tyrex)",
+        "",
+        "Michel, Genevès, Fourati, Layaïda, *Pervasive and Mobile Computing* 46, 2018 (the",
+        "\"benchmarks-attitude-smartphones\" data set, CeCILL 2.1): one user, a Nexus 5 and an",
+        f"iPhone 5, {n} trials of about 2 minutes (8 motions, with and without magnetic",
+        "disturbance), optical motion capture as the truth. Run it:",
+        "",
+        "```bash",
+        f"gnomon benchmark tyrex --data {data_name} [--mag calibrated|raw] "
+        "[--align body,lag|lag|body|none] [--json] [--plot tyrex.png]",
+        "gnomon benchmark DIR      # any folder of recordings that hold a truth",
+        "```",
+        "",
+        "Every method runs on each phone's own sensor rates (gyro, accelerometer and",
+        "magnetometer each at its own rate; no sample invented: see `gnomon.anchors`), with",
+        "default parameters, from the trial's first sample; the metric is BROAD's (RMSE of",
+        "the total, heading and inclination error per trial over 5-120 s of the capture's",
+        "clock, mean over trials). The truth is the phone's attitude in ENU with y to",
+        "**magnetic** north (the capture's true north turned by the declination,",
+        f"{cal['truth']['declination_deg']:+.3f} deg): the north a magnetometer sees. No "
+        "heading offset",
+        "is removed from any method. `phone` is the phone's own estimate (Android rotation",
+        "vector, iOS CoreMotion attitude), `vqf-offline` VQF's acausal variant (a bound, not",
+        "a causal filter).",
+        "",
+        "Two properties of the phones' data weigh on the iPhone 5 columns (`docs/logs.md`):",
+        "its gyro is the raw one, with the bias in the table below (VQF's default bias",
+        "estimate is clipped at 2 deg/s), and its OS-calibrated magnetometer keeps one",
+        "magnitude between jumps, following CoreMotion's own heading: a model output more",
+        "than a measurement. `--mag raw` is uncalibrated (hard iron of 300-430 µT) on both.",
+        "",
+        "**Alignment** (`--align`, default `body,lag`; `gnomon.metrics.align_truth`), fitted",
+        "once per trial from the gyro against the truth's own angular rate and applied to the",
+        "truth before any method is scored, identical for every method: `lag` shifts the",
+        "truth in time by the lag that maximises the correlation of the two rate magnitudes",
+        "(sub-sample), the residual of the data set's 10 ms clock alignment; `body` turns it",
+        "by the constant rotation between the phone's sensor axes and its marker body (least",
+        "squares on the rate vectors, gyro bias removed). Over the trials (rate RMS: the gyro",
+        "against the truth's body rate, nothing corrected, then after the fit):",
+        "",
+        "| phone | lag (ms) | misalignment (deg) | gyro bias (deg/s) | rate RMS before "
+        "(deg/s) | after |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for key, label in (("phone:Nexus5", "Nexus 5"), ("phone:iPhone5", "iPhone 5"),
+                       ("all", "all")):
+        if key in st:
+            d = st[key]
+            lines.append(f"| {label} | {rng(d['lag_ms'])} | "
+                         f"{rng(d['misalignment_deg'], '{:.2f}')} | "
+                         f"{rng(d['gyro_bias_deg_s'], '{:.2f}')} | "
+                         f"{d['rate_rms_deg_s_before']['median']:.1f} (median) | "
+                         f"{d['rate_rms_deg_s']['median']:.1f} (median) |")
+    lines += ["", "### OS-calibrated magnetometer (`--mag calibrated`, the default)", ""]
+    lines += _mean_table(cal)
+    for kind, title in (("phone", "Per phone"), ("disturbance", "Per magnetic disturbance"),
+                        ("motion", "Per motion")):
+        lines += ["", f"{title}, mean total RMSE (deg):", ""] + _group_table(cal, kind)
+    lines += ["", "Per phone, mean inclination RMSE (deg):", ""]
+    lines += _group_table(cal, "phone", "inclination_deg")
+    if raw is not None:
+        lines += ["", "### Raw magnetometer (`--mag raw`)", "",
+                  "The uncalibrated field: heading from it is wrong for every filter (`phone`",
+                  "is the phone's own estimate, the same as above); the inclination remains",
+                  "comparable.", ""]
+        lines += _mean_table(raw)
+        lines += ["", "Per phone, mean total RMSE (deg):", ""] + _group_table(raw, "phone")
+    lines += ["", "How each library is fed the multi-rate phone data:", ""]
+    for k, v in cal["anchor_inputs"].items():
+        lines.append(f"* `{k}`: {v}")
+    return "\n".join(lines)
+
+
+def replace_section(text: str, name: str, body: str) -> str:
+    """``text`` with what lies between ``<!-- name:start -->`` and ``<!-- name:end -->``
+    replaced by ``body`` (unchanged when the markers are missing)."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in text or end not in text:
+        return text
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return f"{head}{start}\n{body}\n{end}{tail}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
@@ -78,6 +200,19 @@ def main() -> None:
 
     data = args.broad or broad_dir() or ROOT / "tests" / "data" / "broad"
     broad = gnomon_json("benchmark", "broad", "--data", str(data))
+    from gnomon.datasets import tyrex_dir
+
+    old_page = (ROOT / "docs" / "benchmarks.md").read_text()
+    tyrex = tyrex_dir()
+    if tyrex is not None:
+        cal = gnomon_json("benchmark", "tyrex", "--data", str(tyrex))
+        raw = gnomon_json("benchmark", "tyrex", "--data", str(tyrex), "--mag", "raw")
+        tyrex_text = tyrex_section(cal, raw, tyrex.name)
+    elif "<!-- tyrex:start -->" in old_page:  # keep what was measured before
+        tyrex_text = old_page.split("<!-- tyrex:start -->\n", 1)[1].split(
+            "\n<!-- tyrex:end -->", 1)[0]
+    else:
+        tyrex_text = "## Smartphones (tyrex)\n\nNot run: the tyrex data set was not found."
     bench = gnomon_json("bench", *(["--quick"] if args.quick else []))
     today = dt.date.today().isoformat()
     n_trials = len({r["trial"] for r in broad["trials"]})
@@ -85,7 +220,8 @@ def main() -> None:
     page = f"""# Benchmarks
 
 Generated on {today} by `python benchmarks/make_docs.py` from the JSON of
-`gnomon benchmark broad --data {Path(data).name} --json` and `gnomon bench --json`.
+`gnomon benchmark broad --data {Path(data).name} --json`, `gnomon benchmark tyrex --json`
+(`--mag calibrated` and `--mag raw`) and `gnomon bench --json`.
 
 ## Accuracy on BROAD
 
@@ -94,6 +230,10 @@ trials, every method with its default parameters, causal, the benchmark's own me
 (RMSE over the movement phases with a valid truth; no alignment).
 
 {broad_tables(broad)}
+
+<!-- tyrex:start -->
+{tyrex_text}
+<!-- tyrex:end -->
 
 ## Speed
 

@@ -42,11 +42,22 @@ holds the last sample of a magnetometer running at ~47 Hz. Those rows are droppe
 first arrival kept; the count in ``meta["assumed"]``). No other file shows the pattern
 (repeats of the previous row in 0-0.2 % of the rows: a raw ``magnetometer.txt`` at 25 Hz
 quantised to 0.18 µT, the gyro, the accelerometer, the attitude), and none is changed.
+What remains of that file keeps one magnitude (to 0.01 µT) from sample to sample in
+98-99.8 % of the pairs of every iOS trial, changing only in jumps (the Nexus 5's: 2-3 %),
+and its direction seen through the motion-capture truth drifts with CoreMotion's own
+heading: it behaves as CoreMotion's model of the field, not as a measurement. The
+fraction is in ``meta["mag_constant_norm_fraction"]`` and said in ``meta["assumed"]``.
 
 Time: ``timeAlignment.txt`` (s) aligns the phone to the motion-capture clock of the data
 set: Android ``t + alignment``, iOS ``t − BootTime + alignment`` (``align_time=False``
 keeps the phone's own clock). Checked on the data: the rotation vector and the iOS
 attitude rotate the resting accelerometer to +9.7 m/s² up and the magnetometer to north.
+
+Truth: when the data set's motion-capture export of the trial is found
+(``../../qualisys/<trial>.mat``, or ``reference=`` a path), it becomes ``q_true``
+(``q_ENU_device``, magnetic north) on the gyro time stamps and ``mask`` the scored
+window (:func:`gnomon.io.tyrex.reference_on`: frames, declination, lost frames, the
+authors' bad intervals); ``reference=False`` reads the phone only.
 
 Sensor Logger (Kelvin Choi's app; zip or folder)
 ------------------------------------------------
@@ -121,6 +132,9 @@ _IOS_HELD = ("CoreMotion holds the last magnetometer sample: the field is delive
              "device-motion rate but the sensor runs at about half of it")
 
 
+#: two magnetometer samples whose magnitudes differ by less than this (µT) keep it
+_CONST_NORM_UT = 0.01
+
 #: which north the phones' own estimate refers heading to in the tyrex data set
 _TYREX_NORTH = {
     "android": "magnetic north (Android's rotation vector: y towards magnetic north)",
@@ -193,7 +207,8 @@ def _drop_held(t: np.ndarray, v: np.ndarray, field: str, assumed: list, why: str
 
 
 def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = "calibrated",
-               align_time: bool = True, onboard: bool = True) -> Recording:
+               align_time: bool = True, onboard: bool = True,
+               reference: bool | str | os.PathLike = True) -> Recording:
     """Read one tyrex trial folder (Android or iOS; module docstring: files, frames, time).
 
     Parameters
@@ -204,6 +219,8 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
     mag : ``"calibrated"`` (the OS's calibration) or ``"raw"``.
     align_time : apply ``timeAlignment.txt`` (and iOS's BootTime).
     onboard : keep the phone's own attitude as ``q_onboard``.
+    reference : ``True``: attach the truth when the data set's ``../../qualisys/<trial>.mat``
+        exists (needs ``align_time``); ``False``: none; a path: that QTM export.
     """
     path = as_path(path)
     platform = tyrex_platform(path)
@@ -255,10 +272,22 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
         assumed.append("iOS: accelerometer in g with the opposite sign, converted "
                        "(x -9.80665 m/s^2 per g); gyro rad/s (raw); magnetometer uT.")
     t_m = m = None
+    constant_norm = None
     if (path / mag_file).is_file():
         t_m, m = load(mag_file, 3)
         if platform == "ios" and mag_file == "magnetometer-calibrated.txt":
             t_m, m = _drop_held(t_m, m, mag_file, assumed, _IOS_HELD)
+            norm = np.linalg.norm(m, axis=1)
+            if norm.size > 10:
+                const = float(np.mean(np.abs(np.diff(norm)) < _CONST_NORM_UT))
+                constant_norm = const
+                if const > 0.5:
+                    assumed.append(
+                        f"{mag_file}: consecutive samples keep the same magnitude (within "
+                        f"{_CONST_NORM_UT} uT) in {100 * const:.1f} % of the pairs, changing "
+                        "only in jumps: CoreMotion's calibrated field behaves as a model "
+                        "output (a field of fixed magnitude turned by its own attitude "
+                        "estimate), not as a measurement; mag='raw' is the uncalibrated one.")
     else:
         assumed.append(f"No {mag_file}: no magnetometer.")
     q_onboard = None
@@ -280,13 +309,28 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
     meta = {"format": "tyrex", "platform": platform, "assumed": assumed, "device": device,
             "gyro": gyro if platform == "android" else "raw", "mag": mag,
             "onboard": onboard_desc, "time_offset_s": offset,
+            "mag_constant_norm_fraction": constant_norm,
             "onboard_heading_reference": None if q_onboard is None else _TYREX_NORTH[platform],
             "onboard_gravity_deg": onboard_gravity_deg(q_onboard, t, t_a, acc)}
+    q_true = mask = None
+    ref_file = None
+    if reference is not False and reference is not None:
+        from gnomon.io.tyrex import reference_on, reference_path
+
+        ref_file = reference_path(path) if reference is True else as_path(reference)
+        if reference is not True and not align_time:
+            raise InputError("the reference is on the data set's motion-capture clock: "
+                             "needs align_time=True", file=str(path), field="reference")
+        if not ref_file.is_file() or not align_time:
+            ref_file = None
+    if ref_file is not None:
+        q_true, mask, said, meta["truth"] = reference_on(t, ref_file, path.name)
+        assumed.extend(said)
     names = {"t": "gyroscope", "gyro": "gyroscope", "accel": "accelerometer.txt",
              "accel_t": "accelerometer.txt", "mag": mag_file, "mag_t": mag_file}
     return build(path, names, t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m,
-                 mag_unit="uT", q_onboard=q_onboard, frames=_FRAMES,
-                 source=f"{path.name} (tyrex {platform})", meta=meta)
+                 mag_unit="uT", q_onboard=q_onboard, q_true=q_true, mask=mask,
+                 frames=_FRAMES, source=f"{path.name} (tyrex {platform})", meta=meta)
 
 
 # ---------------------------------------------------------------------- CSV bundles
