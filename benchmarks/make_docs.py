@@ -12,7 +12,10 @@ speed and accuracy tables in ``README.md`` between the markers
 tables is typed by hand.
 
 ``tyrex_section(calibrated, raw, data_name)`` renders the smartphone section from the two
-JSON results (between ``<!-- tyrex:start -->`` and ``<!-- tyrex:end -->``).
+JSON results (between ``<!-- tyrex:start -->`` and ``<!-- tyrex:end -->``). The ESKF page
+(``docs/estimators/eskf.md``) gets its results (``eskf-results``: BROAD per trial, tyrex
+means) from the same runs and its tuning table (``eskf-tuning``) from
+``docs/figures/defaults_tuning.json`` (``benchmarks/defaults_tuning.py``).
 """
 
 from __future__ import annotations
@@ -179,6 +182,33 @@ def tyrex_section(cal: dict, raw: dict | None, data_name: str) -> str:
     return "\n".join(lines)
 
 
+def eskf_results(broad: dict, tyrex: dict | None) -> str:
+    """The ESKF page's results: per BROAD trial and mean for eskf-r6 / eskf-r3 (VQF for
+    scale), and their tyrex means and worst trials."""
+    ms = [m for m in ("eskf-r6", "eskf-r3", "vqf") if m in broad["mean"]]
+    cell = {(r["trial"], r["method"]): r["total_deg"] for r in broad["trials"]}
+    lines = ["| BROAD trial | " + " | ".join(f"{m} total RMSE, deg" for m in ms) + " |",
+             "| --- |" + " ---: |" * len(ms)]
+    for t in sorted({r["trial"] for r in broad["trials"]}):
+        lines.append(f"| {t} | " + " | ".join(f"{cell.get((t, m), float('nan')):.2f}"
+                                             for m in ms) + " |")
+    lines.append("| **mean** | " + " | ".join(f"**{broad['mean'][m]['total_deg']:.2f}**"
+                                            for m in ms) + " |")
+    if tyrex is not None:
+        ms = [m for m in ("eskf-r6", "eskf-r3", "vqf", "vqf-offline") if m in tyrex["mean"]]
+        worst = {m: max((r for r in tyrex["trials"] if r["method"] == m),
+                        key=lambda r: r["total_deg"]) for m in ms}
+        lines += ["", f"tyrex ({tyrex['mean'][ms[0]]['trials']} trials, OS-calibrated "
+                  "magnetometer), mean total / heading / inclination RMSE and the worst trial "
+                  "(deg):", "", "| method | total | heading | inclination | worst trial |",
+                  "| --- | ---: | ---: | ---: | --- |"]
+        for m in ms:
+            v, w = tyrex["mean"][m], worst[m]
+            lines.append(f"| {m} | {v['total_deg']:.2f} | {v['heading_deg']:.2f} | "
+                         f"{v['inclination_deg']:.2f} | {w['total_deg']:.1f} ({w['trial']}) |")
+    return "\n".join(lines)
+
+
 def replace_section(text: str, name: str, body: str) -> str:
     """``text`` with what lies between ``<!-- name:start -->`` and ``<!-- name:end -->``
     replaced by ``body`` (unchanged when the markers are missing)."""
@@ -213,6 +243,17 @@ def main() -> None:
             "\n<!-- tyrex:end -->", 1)[0]
     else:
         tyrex_text = "## Smartphones (tyrex)\n\nNot run: the tyrex data set was not found."
+    eskf_page = ROOT / "docs" / "estimators" / "eskf.md"
+    text = replace_section(eskf_page.read_text(), "eskf-results",
+                           eskf_results(broad, cal if tyrex is not None else None))
+    tuning = ROOT / "docs" / "figures" / "defaults_tuning.json"
+    if tuning.exists():  # benchmarks/defaults_tuning.py (needs both data sets)
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from robust_ahrs_doc import cross_tables
+
+        text = replace_section(text, "eskf-tuning",
+                               cross_tables(json.loads(tuning.read_text()), "eskf-r3"))
+    eskf_page.write_text(text)
     bench = gnomon_json("bench", *(["--quick"] if args.quick else []))
     today = dt.date.today().isoformat()
     n_trials = len({r["trial"] for r in broad["trials"]})
@@ -252,7 +293,13 @@ Monte Carlo run each. Run it yourself: `gnomon bench` (a few minutes; `--quick` 
     mean_table = broad_tables(broad).split("\n\n")[0]
     summary = (f"{n_trials} trials in `{Path(data).name}`, mean RMSE in degrees "
                f"(`gnomon benchmark broad`, {today}):\n\n{mean_table}")
-    for name, text in (("bench", speed), ("broad", summary)):
+    sections = [("bench", speed), ("broad", summary)]
+    if tyrex is not None:  # otherwise the README keeps what was measured before
+        n_phone = len({r["trial"] for r in cal["trials"]})
+        sections.append(("tyrex", f"{n_phone} trials in `{tyrex.name}`, OS-calibrated "
+                                  f"magnetometer, truth aligned (`gnomon benchmark tyrex`, "
+                                  f"{today}):\n\n" + "\n".join(_mean_table(cal))))
+    for name, text in sections:
         start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
         if start in readme and end in readme:
             head, rest = readme.split(start, 1)

@@ -130,6 +130,8 @@ def main(data_dir="../shared/data/broad", out_dir="docs/figures") -> dict:
                                                     "hard_iron_tau_s": 0.0},
                 "heading_kf off": {"heading_kf": False},
                 "heading_rate_noise_s 0": {"heading_rate_noise_s": 0.0},
+                "heading_bias_ref_deg_s 0 (heading noise not raised by the bias "
+                "uncertainty)": {"heading_bias_ref_deg_s": 0.0},
                 "rest_bias off": {"rest_bias": False}, "motion_bias off": {"motion_bias": False},
                 "tau_acc 0.3 s": {"tau_acc_s": 0.3},
                 "tau_acc 0.3 s, bias estimation off": {"tau_acc_s": 0.3, "rest_bias": False,
@@ -137,6 +139,7 @@ def main(data_dir="../shared/data/broad", out_dir="docs/figures") -> dict:
                 "every sample (mag_every = bias_every = 1)": {"mag_every": 1, "bias_every": 1},
                 "as VQF (tau_acc 3, tau_mag 9, no heading KF, no hard iron)":
                     {"tau_acc_s": 3.0, "tau_mag_s": 9.0, "heading_kf": False,
+                     "heading_bias_ref_deg_s": 0.0, "bias_clip_deg_s": 2.0,
                      "heading_rate_noise_s": 0.0, "mag_every": 1, "bias_every": 1,
                      "hard_iron_tau_s": 0.0}}
     abl = {}

@@ -266,15 +266,17 @@ def _random_inputs(rng, n):
 
 
 _FIELDS = {"q": 1e-12, "bias": 1e-13, "P": 1e-16, "dip_s": 1e-14, "dip_count": 0.0,
-           "acc_lp": 1e-12, "acc_lp_started": 0.0}
+           "acc_lp": 1e-12, "acc_lp_started": 0.0, "since_acc_s": 1e-15, "acc_dev2": 1e-12}
 
 
+@pytest.mark.parametrize("bias_gate", [0.0, 0.2])
 @pytest.mark.parametrize("lp_tau", [0.0, 0.2])
 @pytest.mark.parametrize("cls", [E.EskfR6, E.EskfR3])
-def test_kernel_matches_readable_twin_step_by_step(cls, lp_tau):
+def test_kernel_matches_readable_twin_step_by_step(cls, lp_tau, bias_gate):
     """Each sample: the compiled ``run_batch`` on one row and the readable ``update`` from
     the same ``STATE`` record give the same record (every field) and innovation; the next
-    sample starts both from the kernel's record."""
+    sample starts both from the kernel's record. ``bias_gate`` 0.2 m/s² (over 0.1 s):
+    the gate opens and shuts on the accelerometer noise (the bias held or not)."""
     from gnomon.kernels import eskf as K
 
     rng = np.random.default_rng(7)
@@ -282,18 +284,23 @@ def test_kernel_matches_readable_twin_step_by_step(cls, lp_tau):
     gyro, acc, mag = _random_inputs(rng, n)
     dt = np.full(n, 0.01)
     twin = cls(gyro_noise=3e-3, bias_rw=1e-4, accel_noise=0.1, mag_noise=0.05, dip_tau=10.0,
-               accel_gate=1.0, mag_gate=0.3, accel_lowpass_tau=lp_tau)
+               accel_gate=1.0, mag_gate=0.3, accel_lowpass_tau=lp_tau, bias_gate=bias_gate,
+               bias_gate_tau=0.1)
     twin.state = K.new_state(_random_q(rng), rng.normal(0, 0.01, 3),
                              np.diag([1e-3] * 3 + [1e-4] * 3), -0.9, 10.0)
     twin.b0_mag = 1e-6  # the twin takes µT: mag here is already normalised
     c = K.coefficients(twin.params)
     r = c.mode
+    held = []
     for k in range(n):
         state = twin.state.copy()
+        b_before = state["bias"][0].copy()
         out = K.new_outputs(1)
         K.run_batch(K.Inputs(gyro[k:k + 1], acc[k:k + 1], mag[k:k + 1], dt[k:k + 1]), state, c,
                     out)
         twin.update(dt[k], gyro[k], acc[k], mag[k])
+        if bias_gate > 0.0 and np.array_equal(state["bias"][0], b_before) and k not in (40, 77):
+            held.append(k)
         for name, tol in _FIELDS.items():
             if tol == 0.0:
                 np.testing.assert_array_equal(state[name], twin.state[name], err_msg=name)
@@ -307,6 +314,8 @@ def test_kernel_matches_readable_twin_step_by_step(cls, lp_tau):
         twin.state = state
     # the gated samples left the inclination estimate alone
     assert twin.state["dip_count"][0] == 10.0 + n - 4
+    if bias_gate > 0.0:  # both branches of the bias gate were taken
+        assert 0 < len(held) < n - 2, len(held)
 
 
 def test_streaming_update_matches_batch_run():

@@ -151,7 +151,9 @@ def cmd_estimate(args) -> int:
     rec = _read_input(args)
     est = registry.create(args.filter, _params(args.param)).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
-               "params": est.params}
+               "params": est.params,
+               "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
+                                                        {}))}
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
     matched = None
@@ -174,6 +176,8 @@ def cmd_estimate(args) -> int:
         print_json(summary)
         return 0
     print(f"{args.filter} on {args.input}: {len(rec)} samples")
+    for w in summary["warnings"]:
+        print(f"  warning: {w['message']}")
     if "errors" in summary:
         e = summary["errors"]
         print(f"  RMS error over {e['samples']} scored samples: total {e['total_deg']:.3f} deg, "
@@ -191,6 +195,35 @@ def cmd_estimate(args) -> int:
         if key in summary:
             print(f"  wrote {summary[key]}")
     return 0
+
+
+def _limit_warnings(est, limits: dict) -> list[dict]:
+    """One entry per boolean signal ``<quantity>_at_limit`` of ``est`` that is ever true:
+    the bound (``limits``: signal -> (parameter, unit, what), a filter class attribute),
+    when it was first reached (s after the first sample) and for how long (s)."""
+    import numpy as np
+
+    out = []
+    t = np.asarray(est.t, float)
+    for name, flag in est.signals.items():
+        flag = np.asarray(flag)
+        if not name.endswith("_at_limit") or flag.dtype != bool or not flag.any():
+            continue
+        param, unit, what = limits.get(name, (None, "", name[:-len("_at_limit")]))
+        bound = est.params.get(param) if param else None
+        first = int(np.argmax(flag))
+        held = float(np.diff(t, append=t[-1])[flag].sum())  # each row until the next one
+        where = "its bound"
+        if bound is not None:
+            deg = f" = {math.degrees(bound):.3g} deg/s" if unit == "rad/s" else ""
+            where = f"±{bound:g} {unit}{deg} ({param})"
+        out.append({"signal": name, "parameter": param, "limit": bound, "unit": unit,
+                    "first_s": float(t[first] - t[0]), "duration_s": held,
+                    "fraction": float(flag.mean()),
+                    "message": f"{what} at its limit {where} from {t[first] - t[0]:.2f} s "
+                               f"for {held:.2f} s ({100 * flag.mean():.1f} % of samples); "
+                               f"the true value may lie beyond it"})
+    return out
 
 
 def cmd_benchmark(args) -> int:

@@ -22,14 +22,23 @@ n = ENU. The estimate is
   filtering already done, the full correction is applied every sample.
 * **Rest detection** (``rest_bias``): gyro and accelerometer low-passed with
   ``rest_tau_s``; rest when both deviate from their low-pass by less than
-  ``rest_th_gyro_deg_s`` / ``rest_th_acc_m_s2`` for ``rest_min_s``.
+  ``rest_th_gyro_deg_s`` / ``rest_th_acc_m_s2`` for ``rest_min_s`` and the low-passed
+  rate is within ``bias_clip_deg_s``. A steady rate farther than ``rest_th_rate_deg_s``
+  from the bias estimate (measured on the bias-corrected rate, so a large but estimated
+  bias does not prevent a rest) is either a large bias not yet estimated or a slow
+  rotation: it counts as rest only after ``rest_min_large_bias_s``.
 * **Gyro bias** (3-state Kalman filter, rad/s): at rest the measurement is the
   low-passed gyro (``H = I``, std ``bias_sigma_rest_deg_s``); in motion
   (``motion_bias``) the inclination correction is the measurement of the
   horizontal components of ``R_6b b`` (both sides low-passed like the
-  accelerometer), std ``bias_sigma_motion_deg_s``; the vertical component is
-  only weakly pulled to zero (``bias_vertical_forgetting``). The covariance
-  grows so that the uncertainty reaches 0.1 deg/s after ``bias_forgetting_s``.
+  accelerometer), std ``bias_sigma_motion_deg_s``, with Huber weights beyond
+  ``bias_huber_deg_s`` (a larger innovation pulls like one of that size, and the
+  covariance shrinks less, so a large initial bias still converges); the vertical
+  component is only weakly pulled to zero (``bias_vertical_forgetting``). The
+  covariance grows so that the uncertainty reaches 0.1 deg/s after
+  ``bias_forgetting_s``. The estimate is bounded by ``bias_clip_deg_s`` (15 deg/s:
+  uncalibrated phone gyros reach 6 deg/s; VQF's 2 deg/s would hold such a bias at the
+  bound); ``bias_at_limit`` says when it is there.
 * **Heading** (``tau_mag_s``): the magnetometer, seen in frame 6, gives the
   heading disagreement ``atan2(m_E, m_N) - δ``; ``δ`` follows it with a
   first-order filter. The magnetometer never touches the inclination. During
@@ -39,7 +48,12 @@ n = ENU. The estimate is
   ``heading_rate_noise_s² |ω|²`` and is reduced by each heading update with
   measurement variance ``tau_mag_s² / T`` (steady gain = the first-order gain of
   ``tau_mag_s`` at rest). While the field is rejected the variance grows, so the
-  heading recovers fast afterwards; fast rotation raises the gain too.
+  heading recovers fast afterwards; fast rotation raises the gain too. The rate-1
+  growth is multiplied by ``1 + σ_v² / heading_bias_ref_deg_s²``, ``σ_v² = uᵀ P u`` the
+  variance of the bias estimate about the vertical (``u`` = up in body, ``P`` the bias
+  filter's covariance): an unknown bias turns the heading, so where the bias is known
+  only to its prior (no rest phase yet) the heading follows the magnetometer faster,
+  and after a rest with ``tau_mag_s``.
 * **Online hard-iron offset** (``hard_iron_tau_s``, gnomon's addition): with a
   magnet fixed to the sensor, ``R_6b m = h + R_6b o`` with ``h`` fixed in frame 6.
   Exponentially weighted sums (window ``hard_iron_tau_s``) give the least-squares
@@ -76,7 +90,9 @@ Intervals longer than ``max_dt_s`` are gaps (gyro only). Streaming
 ``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)``: ``None`` (or a zero
 vector, as in a recording) is no new sample of that sensor and skips its phase.
 
-Signals of ``run``: ``bias_rad_s`` (N, 3), ``rest`` (bool), ``mag_disturbed``
+Signals of ``run``: ``bias_rad_s`` (N, 3), ``bias_at_limit`` (bool: a component of the
+bias estimate is at ``bias_clip_deg_s``; the true bias may be larger, ``gnomon estimate``
+warns), ``rest`` (bool), ``mag_disturbed``
 (bool), ``acc_correction_rad_s`` (inclination correction rate: sine of the
 correction angle / ts), ``hard_iron`` (N, 3) offset in use (magnetometer unit),
 ``mag_gain``
@@ -105,6 +121,7 @@ from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
 from gnomon.kernels.robust_ahrs import (
     ACC_SKIPPED,
+    BIAS_AT_LIMIT,
     GAP,
     MAG_SKIPPED,
     Coefficients,
@@ -134,14 +151,23 @@ class RobustAHRSParams(Params):
                                         "rotation, variance rate q_r |w|^2 with q_r = this^2 "
                                         "(heading variance rate 1 without rotation), so fast "
                                         "motion raises the gain")
+    heading_bias_ref_deg_s: float = param(0.05, "deg/s", "heading KF: its random walk is "
+                                          "multiplied by 1 + (sigma_bv / this)^2, sigma_bv "
+                                          "the std of the bias estimate about the vertical "
+                                          "(an unknown bias turns the heading; 0: off)")
     mag_bias_gain_per_s: float = param(0.0, "1/s", "heading-rate bias loop: integral gain "
                                        "of the heading disagreement into the vertical bias "
                                        "(0: off)")
     bias_sigma_init_deg_s: float = param(0.5, "deg/s", "initial bias uncertainty (std)")
     bias_forgetting_s: float = param(100.0, "s", "time for the bias uncertainty to grow by "
                                      "0.1 deg/s")
-    bias_clip_deg_s: float = param(2.0, "deg/s", "bound on the bias estimate and its "
-                                   "innovations")
+    bias_clip_deg_s: float = param(15.0, "deg/s", "bound on the bias estimate (signal "
+                                   "bias_at_limit when reached) and on the low-passed rate "
+                                   "of a rest phase")
+    bias_huber_deg_s: float = param(2.0, "deg/s", "bias filter in motion: an innovation "
+                                    "component beyond this has its variance scaled by "
+                                    "|e|/this (Huber weight: its pull is that of this bound, "
+                                    "the covariance shrinks less)")
     bias_sigma_motion_deg_s: float = param(0.1, "deg/s", "bias measurement std in motion")
     bias_vertical_forgetting: float = param(1e-4, "", "vertical bias in motion: weight "
                                             "relative to the horizontal components")
@@ -149,6 +175,11 @@ class RobustAHRSParams(Params):
     rest_min_s: float = param(1.5, "s", "minimum duration of a rest phase")
     rest_tau_s: float = param(0.5, "s", "low-pass time constant of the rest detection")
     rest_th_gyro_deg_s: float = param(2.0, "deg/s", "rest threshold on the gyro deviation")
+    rest_th_rate_deg_s: float = param(2.0, "deg/s", "a steady low-passed rate farther than "
+                                      "this from the bias estimate (a large bias not yet "
+                                      "estimated, or a slow rotation) needs "
+                                      "rest_min_large_bias_s to count as rest")
+    rest_min_large_bias_s: float = param(5.0, "s", "minimum duration of such a rest phase")
     rest_th_acc_m_s2: float = param(0.5, "m/s^2", "rest threshold on the accelerometer "
                                     "deviation")
     mag_current_tau_s: float = param(0.05, "s", "low-pass of the field's norm and dip")
@@ -185,10 +216,12 @@ class RobustAHRSParams(Params):
         self._require("bias_every", self.bias_every >= 1, "must be >= 1")
         self._require("mag_every", self.mag_every >= 1, "must be >= 1")
         for name in ("tau_acc_s", "rest_tau_s", "bias_sigma_init_deg_s", "bias_forgetting_s",
-                     "bias_clip_deg_s", "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
+                     "bias_clip_deg_s", "bias_huber_deg_s",
+                     "bias_sigma_motion_deg_s", "bias_sigma_rest_deg_s",
                      "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
             self._require(name, getattr(self, name) > 0, "must be > 0")
-        for name in ("tau_mag_s", "rest_min_s", "rest_th_gyro_deg_s",
+        for name in ("tau_mag_s", "heading_bias_ref_deg_s", "rest_min_s", "rest_th_gyro_deg_s",
+                     "rest_th_rate_deg_s", "rest_min_large_bias_s",
                      "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s", "mag_norm_th",
                      "mag_dip_th_deg", "mag_new_s", "mag_new_first_s", "mag_soft_norm",
                      "mag_soft_dip_deg",
@@ -246,13 +279,16 @@ def _strapdown(s, dt, g):
 
 def _rest_acc(s, c, a):
     """Rest detection, accelerometer part: rest after ``rest_min_s`` within the threshold
-    of the low-passed specific force ``a`` (m/s²)."""
+    of the low-passed specific force ``a`` (m/s²); after ``rest_min_large_s`` when the
+    low-passed rate is farther than ``rest_th_rate`` from the bias estimate."""
     dev = a - _lowpass(s.rest_acc_lp, a, c.rest_acc_lp)
     if dev @ dev >= c.rest_th_acc2:
         s.rest_t, s.rest = 0.0, False
     else:
         s.rest_t += c.ts_acc_s
-        if s.rest_t >= c.rest_min_s:
+        far = np.max(np.abs(s.gyro_lp - s.bias))
+        if s.rest_t >= c.rest_min_s and not s.rest and (
+                far <= c.rest_th_rate or s.rest_t >= c.rest_min_large_s):
             s.rest = True
 
 
@@ -287,20 +323,23 @@ def _bias_kf(s, c, f):
     P = s.P  # a view
     P[np.diag_indices(3)] += np.where(np.diag(P) < c.bias_p0, c.bias_v, 0.0)
     if c.rest_bias and s.rest:
-        _bias_update(s, c, np.eye(3), s.gyro_lp - s.bias, np.full(3, c.w_rest))
+        _bias_update(s, c, np.eye(3), s.gyro_lp - s.bias, np.full(3, c.w_rest), c.bias_clip)
     elif c.motion_bias and f is not None:
         y = np.array([-f[1] / c.ts_acc_s + rb_lp[0], f[0] / c.ts_acc_s + rb_lp[1], 0.0])
         _bias_update(s, c, H, y - H @ s.bias, np.array([c.w_motion, c.w_motion,
-                                                        c.w_vertical]))
+                                                        c.w_vertical]), c.huber)
 
 
-def _bias_update(s, c, H, e, w):
-    """Kalman update of the bias with the innovation ``e`` (clipped), measurement matrix
-    ``H`` and variances ``w``; the bias stays within ``bias_clip``."""
+def _bias_update(s, c, H, e, w, ei):
+    """Kalman update of the bias with the innovation ``e``, measurement matrix ``H`` and
+    variances ``w``, each multiplied by ``|e_i| / ei`` where ``|e_i| > ei`` (Huber weights);
+    the bias stays within ``bias_clip``."""
     lim = c.bias_clip
+    w = w * np.maximum(np.abs(e) / ei, 1.0)
     P = s.P.copy()
     K = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(w))
-    s.bias = np.clip(s.bias + K @ np.clip(e, -lim, lim), -lim, lim)
+    s.bias = np.clip(s.bias + K @ e, -lim, lim)
+    s.bias_at_limit = bool(np.any(np.abs(s.bias) >= lim))
     P -= K @ H @ P
     s.P = 0.5 * (P + P.T)  # symmetric against rounding over long runs
 
@@ -330,12 +369,13 @@ def _magnetometer(s, c, m):
         soft = _new_field(s, c, cur)
     dis = _wrap(math.atan2(m6[0], m6[1]) - s.delta)
     s.mag_dis = dis
-    s.k_mag_used = k = _heading_gain(s, c, soft)
+    s.k_mag_used = k = _heading_gain(s, c, soft, R[2] @ s.P @ R[2])  # R[2]: up in b
     s.delta = _wrap(s.delta + k * dis)
     s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * s.delta), math.sin(0.5 * s.delta)
     if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:  # heading-rate bias loop
-        db = c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag
+        db = -c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag  # dis < 0: bias along up too small
         s.bias = np.clip(s.bias + db * R[2], -c.bias_clip, c.bias_clip)  # R[2]: up in b
+        s.bias_at_limit = bool(np.any(np.abs(s.bias) >= c.bias_clip))
 
 
 def _hard_iron(s, c, R, cnt):
@@ -405,13 +445,14 @@ def _new_field(s, c, cur):
     return 1.0
 
 
-def _heading_gain(s, c, soft):
-    """This update's heading gain: ``k_mag`` or the heading KF's, 0 while a disturbance is
-    rejected (divided after ``mag_max_reject_s``), divided by the de-weighting ``soft``,
-    at least the running-mean gain at start."""
+def _heading_gain(s, c, soft, p_bv):
+    """This update's heading gain: ``k_mag`` or the heading KF's (random walk raised by
+    the vertical bias variance ``p_bv``), 0 while a disturbance is rejected (divided after
+    ``mag_max_reject_s``), divided by the de-weighting ``soft``, at least the running-mean
+    gain at start."""
     k, r_head = c.k_mag, c.r_head  # r_head: the heading measurement variance
     if c.heading_kf:
-        s.p_head += c.q_head + c.q_rate * s.rot2
+        s.p_head += c.q_head * (1.0 + p_bv * c.inv_bias_ref2) + c.q_rate * s.rot2
     s.rot2 = 0.0
     if c.mag_rejection:
         if s.mag_disturbed:
@@ -466,6 +507,9 @@ class RobustAHRS(Estimator):
     needs = ("gyro", "accel", "mag")
     multi_rate = True
     state_fields = ("state", "ts", "t_last")
+    #: Signals ``*_at_limit`` -> (parameter of the bound, its unit, what reached it): read
+    #: by ``gnomon estimate`` for its warnings.
+    limits = {"bias_at_limit": ("bias_clip_deg_s", "deg/s", "gyro bias estimate")}
 
     def reset(self) -> None:
         self.state = new_state(self.params)  # one STATE record (gnomon.kernels.robust_ahrs)
@@ -558,7 +602,7 @@ class RobustAHRS(Estimator):
                          for name in ("gyro", "accel", "mag")))
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
-               "hi": np.empty((n, 3)), "flags": np.empty(n, np.int64)}
+               "hi": np.empty((n, 3)), "flags": np.empty(n, np.uint8)}
         # strided views are fine for the kernel (no copy)
         # each sensor at its own rate: NaN rows (no new sample) skip their phase
         robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
@@ -572,7 +616,9 @@ class RobustAHRS(Estimator):
         return Estimate(
             t=rec.t, q=out["q"], estimator=self.name, params=self.params.as_dict(),
             frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
-            signals={"bias_rad_s": out["bias"], "rest": out["rest"],
+            signals={"bias_rad_s": out["bias"],
+                     "bias_at_limit": (f & BIAS_AT_LIMIT) != 0,
+                     "rest": out["rest"],
                      "mag_disturbed": out["dist"], "acc_correction_rad_s": out["acc_rate"],
                      "mag_gain": out["k_mag"], "hard_iron": out["hi"],
                      "acc_skipped": (f & ACC_SKIPPED) != 0,

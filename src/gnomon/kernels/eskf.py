@@ -11,11 +11,15 @@ Shape (see ``gnomon.kernels``):
 * ``STATE`` (one-element structured array, ``new_state``): ``q`` (4,) = ``q_nb`` (ENU
   from body, ``[w, x, y, z]``), ``bias`` (3,) rad/s, ``P`` (6, 6) covariance of the error
   ``[δe; δb]``, the running inclination estimate ``dip_s`` (mean of ``a·m / (g|m|)``,
-  ``= -Z``) with its weight ``dip_count``, and the navigation-frame accelerometer
-  low-pass ``acc_lp`` (3,) m/s² with ``acc_lp_started``;
+  ``= -Z``) with its weight ``dip_count``, the navigation-frame accelerometer
+  low-pass ``acc_lp`` (3,) m/s² with ``acc_lp_started``, and ``acc_dev2``, the mean of
+  ``(| |a| - g |)²`` of the bias gate;
 * ``step`` = ``predict`` (gyro) → ``reference_and_gates`` (accelerometer and
-  magnetometer: variance gates, inclination) → ``accel_lowpass`` → ``measure_r6`` or
-  ``measure_r3`` (``y``, ``D1``, ``R``) → ``correct`` (gain, Joseph update, injection);
+  magnetometer: variance gates, inclination) → ``bias_gate`` → ``accel_lowpass`` →
+  ``measure_r6`` or ``measure_r3`` (``y``, ``D1``, ``R``) → ``correct`` (gain, Joseph
+  update, injection with the bias within ``±bias_limit``; ``hold_bias`` undoes its bias
+  part while the gate is shut) → ``follow_correction`` (the low-pass turns with the
+  correction);
 * ``run_batch(inputs, state, coefficients, outputs)`` loops ``step`` over ``Inputs``
   and writes ``Outputs``.
 
@@ -74,7 +78,8 @@ __all__ = [
     "MODE_PREDICT_ONLY", "MODE_R3", "MODE_R6", "MAX_ABS_DIP", "STATE", "Coefficients",
     "Inputs", "Outputs", "Work", "coefficients", "new_state", "new_outputs", "workspace",
     "predict", "reference_and_gates", "accel_lowpass", "measure_r6", "measure_r3",
-    "correct", "inject", "gate_factor", "step", "run_batch", "gain", "joseph",
+    "correct", "inject", "gate_factor", "follow_correction", "bias_gate", "bias_block",
+    "hold_bias", "step", "run_batch", "gain", "joseph",
 ]
 
 MODE_PREDICT_ONLY = 0
@@ -105,7 +110,17 @@ class Coefficients(NamedTuple):
     acc_lp_tau: float  #: s, navigation-frame accelerometer low-pass (0: off)
     gate_acc: float    #: m/s², | |a| - g | doubling the accelerometer variance (0: off)
     gate_mag: float    #: 1, field deviation doubling the magnetometer variance (0: off)
+    acc_lp_follow: float  #: 1, fraction of a correction the accelerometer low-pass follows
+    bias_gate2: float  #: (m/s²)², mean (| |a| - g |)² above which the bias is held (0: off)
+    bias_gate_rate: float  #: 1/s, 1 / the time constant of that mean
+    bias_limit: float  #: rad/s, bound on each component of the bias estimate
     mode: int          #: MODE_R6, MODE_R3 or MODE_PREDICT_ONLY
+    # reciprocals, so that the step multiplies where it would divide
+    inv_gravity: float    #: 1/g
+    inv_gate_acc: float   #: 1/gate_acc (0: gating off)
+    inv_gate_mag: float   #: 1/gate_mag (0: gating off)
+    dip_rate: float       #: 1/dip_tau (1/s)
+    acc_lp_rate: float    #: 1/acc_lp_tau (1/s)
 
 
 def coefficients(params, predict_only: bool = False) -> Coefficients:
@@ -118,7 +133,14 @@ def coefficients(params, predict_only: bool = False) -> Coefficients:
         var_mag=p.mag_noise**2, gravity=float(p.gravity),
         dip_tau=0.0 if p.inclination_known else float(p.dip_tau),
         acc_lp_tau=float(p.accel_lowpass_tau), gate_acc=float(p.accel_gate),
-        gate_mag=float(p.mag_gate), mode=mode)
+        gate_mag=float(p.mag_gate), acc_lp_follow=float(p.accel_lowpass_follow),
+        bias_gate2=float(p.bias_gate) ** 2,  # 0: off (no inf: fastmath assumes none)
+        bias_gate_rate=1.0 / float(p.bias_gate_tau), bias_limit=float(p.bias_limit), mode=mode,
+        inv_gravity=1.0 / float(p.gravity),
+        inv_gate_acc=1.0 / p.accel_gate if p.accel_gate > 0.0 else 0.0,
+        inv_gate_mag=1.0 / p.mag_gate if p.mag_gate > 0.0 else 0.0,
+        dip_rate=1.0 / p.dip_tau if p.dip_tau > 0.0 else 0.0,
+        acc_lp_rate=1.0 / p.accel_lowpass_tau if p.accel_lowpass_tau > 0.0 else 0.0)
 
 
 STATE = np.dtype([
@@ -130,6 +152,7 @@ STATE = np.dtype([
     ("acc_lp", np.float64, (3,)),     # low-passed accelerometer, navigation frame, m/s²
     ("acc_lp_started", np.bool_),     # acc_lp holds a value
     ("since_acc_s", np.float64),      # s since the accelerometer's previous sample
+    ("acc_dev2", np.float64),         # mean of (| |a| - g |)², (m/s²)²: the bias gate
 ], align=True)
 
 
@@ -164,12 +187,13 @@ class Outputs(NamedTuple):
     innovation: np.ndarray  #: (N, 6), first r columns; left as given on skipped samples
     cov_diag: np.ndarray    #: (N, 6) diagonal of P
     skipped: np.ndarray     #: (N,) bool: accelerometer or magnetometer dropout
+    at_limit: np.ndarray    #: (N,) bool: a component of the bias at ``bias_limit``
 
 
 def new_outputs(n: int) -> Outputs:
     """``Outputs`` for ``n`` samples (innovation zeroed, skipped False)."""
     return Outputs(np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 6)), np.empty((n, 6)),
-                   np.zeros(n, np.bool_))
+                   np.zeros(n, np.bool_), np.empty(n, np.bool_))
 
 
 class Work(NamedTuple):
@@ -239,11 +263,9 @@ def predict(s, c, gx, gy, gz, dt, A, T, U):
 
 # ---------------------------------------------------------------- phase 2: accel + mag
 @njit(inline="always", **_JIT)
-def gate_factor(dev, gate):
-    """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``: gating off)."""
-    if gate <= 0.0:
-        return 1.0
-    u = dev / gate
+def gate_factor(dev, inv_gate):
+    """Variance inflation ``1 + (dev/gate)²`` for ``inv_gate = 1/gate`` (0: gating off, 1)."""
+    u = dev * inv_gate
     return 1.0 + u * u
 
 
@@ -259,12 +281,14 @@ def reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt):
     ``|s| <= MAX_ABS_DIP``. ``na``, ``nm``: the norms of a and m. Returns
     ``(fa, fm, H, Z)`` with ``Z = -s``, ``H = sqrt(1 - s²)``.
     """
-    cos_am = (ax * mx + ay * my + az * mz) / (c.gravity * nm)
-    fa = gate_factor(abs(na - c.gravity), c.gate_acc)
-    fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), c.gate_mag)
+    cos_am = (ax * mx + ay * my + az * mz) * c.inv_gravity / nm
+    fa = gate_factor(abs(na - c.gravity), c.inv_gate_acc)
+    fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), c.inv_gate_mag)
     if c.dip_tau > 0.0 and fm < 2.0 and fa < 2.0:
         s.dip_count += 1.0
-        w = max(1.0 / s.dip_count, dt / c.dip_tau)
+        w = dt * c.dip_rate  # max(1/count, dt/dip_tau), the division only while it is 1/count
+        if w * s.dip_count < 1.0:
+            w = 1.0 / s.dip_count
         s.dip_s = clip(s.dip_s + w * (cos_am - s.dip_s), MAX_ABS_DIP)
     return fa, fm, math.sqrt(1.0 - s.dip_s * s.dip_s), -s.dip_s
 
@@ -282,7 +306,7 @@ def accel_lowpass(s, c, ax, ay, az, dt):
     """
     q, lp = s.q, s.acc_lp
     if s.acc_lp_started:
-        w = min(1.0, dt / c.acc_lp_tau)
+        w = min(1.0, dt * c.acc_lp_rate)
     else:
         lp[:] = 0.0
         w = 1.0
@@ -292,6 +316,65 @@ def accel_lowpass(s, c, ax, ay, az, dt):
     lp[2] += w * (nz - lp[2])
     s.acc_lp_started = True
     return rotate_inv(q[0], q[1], q[2], q[3], lp[0], lp[1], lp[2])
+
+
+@njit(inline="always", **_JIT)
+def follow_correction(s, c, bx, by, bz):
+    """After a correction of ``q``: the low-pass state moves by ``acc_lp_follow`` of the way
+    to the filtered reading ``(bx, by, bz)`` (body, as it was before the correction) seen
+    through the corrected attitude, ``lp ← lp + λ (Ĉ_nb b - lp)``.
+
+    With ``λ = 1`` the low-pass lives in a frame that turns with every correction (as
+    VQF's almost-inertial frame, corrected only on its left) and a corrected tilt leaves
+    the average at once; with ``λ = 0`` (the former filter) a corrected tilt stayed in the
+    average for ``acc_lp_tau`` and was measured, and corrected, again and again, which
+    under sustained motion drove the bias estimate away (walking, swinging: 14-19 °/s).
+    Between the two, a corrected tilt is measured again for about ``1/λ`` samples: a
+    stronger tilt loop than the Kalman gain alone, without feeding the bias."""
+    q, lp = s.q, s.acc_lp
+    nx, ny, nz = rotate(q[0], q[1], q[2], q[3], bx, by, bz)
+    lam = c.acc_lp_follow
+    lp[0] += lam * (nx - lp[0])
+    lp[1] += lam * (ny - lp[1])
+    lp[2] += lam * (nz - lp[2])
+
+
+@njit(inline="always", **_JIT)
+def bias_gate(s, c, na, dt):
+    """Update the mean of ``(| |a| - g |)²`` (weight ``min(1, dt / bias_gate_tau)``, ``dt``
+    the time since the accelerometer's previous sample) and return whether it exceeds
+    ``bias_gate²``: strong sustained linear acceleration (walking, running), whose
+    low-passed residue the accelerometer rows cannot tell from a tilt error. The
+    correction then leaves the bias alone (``hold_bias``). Off (``bias_gate = 0``, the
+    default): False, the mean not kept."""
+    if c.bias_gate2 <= 0.0:
+        return False
+    dev = na - c.gravity
+    s.acc_dev2 += min(1.0, dt * c.bias_gate_rate) * (dev * dev - s.acc_dev2)
+    return s.acc_dev2 > c.bias_gate2
+
+
+@njit(inline="always", **_JIT)
+def bias_block(s):
+    """The bias estimate and its covariance block (upper triangle), to be restored by
+    ``hold_bias``."""
+    b, P = s.bias, s.P
+    return (b[0], b[1], b[2], P[3, 3], P[3, 4], P[3, 5], P[4, 4], P[4, 5], P[5, 5])
+
+
+@njit(inline="always", **_JIT)
+def hold_bias(s, k):
+    """Undo a correction's effect on the bias: ``b`` and ``P_bb`` back to ``k``
+    (``bias_block`` before it). What remains is exactly the Schmidt ("consider") update
+    with zero bias gain: the attitude gain and the attitude-bias covariance of the
+    optimal update do not depend on the bias gain (``K_a = P_aa Dᵀ S⁻¹``,
+    ``P_ab ← (I - K_a D) P_ab``), so the covariance stays consistent."""
+    b, P = s.bias, s.P
+    b[0], b[1], b[2] = k[0], k[1], k[2]
+    P[3, 3], P[4, 4], P[5, 5] = k[3], k[6], k[8]
+    P[3, 4] = P[4, 3] = k[4]
+    P[3, 5] = P[5, 3] = k[5]
+    P[4, 5] = P[5, 4] = k[7]
 
 
 @njit(inline="always", **_JIT)
@@ -334,7 +417,7 @@ def measure_r3(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, y, D1, Rd):
     predicted measurement is zero. ``R = diag(σ_a² fa/g², σ_a² fa/g², σ_m² fm/H²)``.
     """
     c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm(q[0], q[1], q[2], q[3])
-    ig = 1.0 / c.gravity
+    ig = c.inv_gravity
     ih = 1.0 / mag_h
     y[0] = (c00 * ax + c01 * ay + c02 * az) * ig
     y[1] = (c10 * ax + c11 * ay + c12 * az) * ig
@@ -446,24 +529,25 @@ def joseph(P, D1, Rd, y, K, r, L, M, G, dx):
 
 
 @njit(inline="always", **_JIT)
-def inject(q, b, dx):
-    """``q ← normalise(q ⊗ [1, δe])``, ``b ← b + δb`` (the error state is then reset to zero)."""
+def inject(q, b, dx, lim):
+    """``q ← normalise(q ⊗ [1, δe])``, ``b ← b + δb`` with each component within ``±lim``
+    (the error state is then reset to zero)."""
     w, x, y, z = mul(q[0], q[1], q[2], q[3], 1.0, dx[0], dx[1], dx[2])
     q[0], q[1], q[2], q[3] = normalised(w, x, y, z)
-    b[0] += dx[3]
-    b[1] += dx[4]
-    b[2] += dx[5]
+    b[0] = clip(b[0] + dx[3], lim)
+    b[1] = clip(b[1] + dx[4], lim)
+    b[2] = clip(b[2] + dx[5], lim)
 
 
 @njit(inline="always", **_JIT)
-def correct(s, mode, y, D1, Rd, dx):
+def correct(s, c, mode, y, D1, Rd, dx):
     """Kalman correction of the record ``s``: ``gain`` + ``joseph`` + mirror of P (the
     straight-line ``eskf_unrolled.update_r6`` / ``update_r3``), then ``inject``."""
     if mode == MODE_R6:
         update_r6(s.P, D1, Rd, y, dx)
     else:
         update_r3(s.P, D1, Rd, y, dx)
-    inject(s.q, s.bias, dx)
+    inject(s.q, s.bias, dx, c.bias_limit)
 
 
 _gain_loops = njit(**_JIT)(gain)
@@ -472,7 +556,7 @@ _joseph_loops = njit(**_JIT)(joseph)
 
 # ---------------------------------------------------------------- step and batch
 @njit(inline="always", **_JIT)
-def correct_rows(s, r, y, D1, Rd, dx, scratch):
+def correct_rows(s, c, r, y, D1, Rd, dx, scratch):
     """Kalman correction with the first ``r`` rows of ``y``, ``D1``, ``Rd`` (any ``r``: the
     loop forms of ``gain`` and ``joseph``, compiled), P mirrored, then ``inject``.
     ``scratch``: (SCRATCH,) floats for their work matrices (one array: the loop that
@@ -488,7 +572,7 @@ def correct_rows(s, r, y, D1, Rd, dx, scratch):
     for i in range(6):
         for j in range(i + 1, 6):
             s.P[j, i] = s.P[i, j]
-    inject(s.q, s.bias, dx)
+    inject(s.q, s.bias, dx, c.bias_limit)
 
 
 @njit(inline="always", **_JIT)
@@ -504,13 +588,13 @@ def one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w):
     dip = s.dip_s
     mag_h, mag_z = math.sqrt(1.0 - dip * dip), -dip
     if new_a:
-        fa, fm = gate_factor(abs(na - c.gravity), c.gate_acc), 1.0
+        fa, fm = gate_factor(abs(na - c.gravity), c.inv_gate_acc), 1.0
         if c.acc_lp_tau > 0.0:
             ax, ay, az = accel_lowpass(s, c, ax, ay, az, s.since_acc_s)
         mx, my, mz = 0.0, 0.0, 0.0
     else:
         _, _, vz = rotate(q[0], q[1], q[2], q[3], mx, my, mz)
-        fa, fm = 1.0, gate_factor(max(abs(nm - 1.0), abs(vz / nm - dip)), c.gate_mag)
+        fa, fm = 1.0, gate_factor(max(abs(nm - 1.0), abs(vz / nm - dip)), c.inv_gate_mag)
         ax, ay, az = 0.0, 0.0, 0.0
     if mode == MODE_R6:
         measure_r6(q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
@@ -530,11 +614,24 @@ def one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w):
 def _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w, scratch):
     """``one_sensor`` then ``correct_rows``: a function of its own, called (not inlined)
     from the loop, which it would slow by a sixth with its size for rows that only a
-    multi-rate recording has. Returns the rows used."""
+    multi-rate recording has. The bias gate (``bias_gate``, on an accelerometer sample;
+    its state otherwise) and the low-pass's following of the correction as in ``step``.
+    Returns the rows used."""
+    hold = c.bias_gate2 > 0.0 and s.acc_dev2 > c.bias_gate2
+    if new_a:
+        hold = bias_gate(s, c, na, s.since_acc_s)
     r = one_sensor(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w)
     if new_a:
         s.since_acc_s = 0.0
-    correct_rows(s, r, w.y, w.D1, w.Rd, w.dx, scratch)
+    q, lp = s.q, s.acc_lp
+    follow = c.acc_lp_tau > 0.0 and c.acc_lp_follow > 0.0 and s.acc_lp_started
+    bx, by, bz = rotate_inv(q[0], q[1], q[2], q[3], lp[0], lp[1], lp[2])
+    k = bias_block(s)
+    correct_rows(s, c, r, w.y, w.D1, w.Rd, w.dx, scratch)
+    if hold:
+        hold_bias(s, k)
+    if follow:
+        follow_correction(s, c, bx, by, bz)
     return r
 
 
@@ -565,13 +662,21 @@ def step(s, c, mode, inputs, k, w, since, scratch):
                                    scratch)
         return r, s.since_acc_s
     fa, fm, mag_h, mag_z = reference_and_gates(s, c, ax, ay, az, mx, my, mz, na, nm, dt)
+    hold = bias_gate(s, c, na, since)
     if c.acc_lp_tau > 0.0:
         ax, ay, az = accel_lowpass(s, c, ax, ay, az, since)
     if mode == MODE_R6:
         measure_r6(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
     else:
         measure_r3(s.q, c, ax, ay, az, mx, my, mz, mag_h, mag_z, fa, fm, w.y, w.D1, w.Rd)
-    correct(s, mode, w.y, w.D1, w.Rd, w.dx)
+    if hold:
+        k = bias_block(s)
+        correct(s, c, mode, w.y, w.D1, w.Rd, w.dx)
+        hold_bias(s, k)
+    else:
+        correct(s, c, mode, w.y, w.D1, w.Rd, w.dx)
+    if c.acc_lp_tau > 0.0 and c.acc_lp_follow > 0.0:
+        follow_correction(s, c, ax, ay, az)  # (ax, ay, az): the filtered reading, body
     return (6 if mode == MODE_R6 else 3), 0.0
 
 
@@ -580,6 +685,7 @@ def _loop(inputs, s, c, outputs, w, mode, scratch):
     """The loop over samples for one ``mode`` (a constant: its branches fold away)."""
     r_full = 6 if mode == MODE_R6 else 3
     since = s.since_acc_s
+    lim = c.bias_limit
     for k in range(inputs.dt.shape[0]):
         r, since = step(s, c, mode, inputs, k, w, since, scratch)
         outputs.skipped[k] = mode != MODE_PREDICT_ONLY and r < r_full
@@ -588,8 +694,9 @@ def _loop(inputs, s, c, outputs, w, mode, scratch):
                 outputs.innovation[k, j] = w.y[j]
         for j in range(4):
             outputs.q[k, j] = s.q[j]
-        for j in range(3):
-            outputs.bias[k, j] = s.bias[j]
+        b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
+        outputs.bias[k, 0], outputs.bias[k, 1], outputs.bias[k, 2] = b0, b1, b2
+        outputs.at_limit[k] = abs(b0) >= lim or abs(b1) >= lim or abs(b2) >= lim
         for j in range(6):
             outputs.cov_diag[k, j] = s.P[j, j]
     s.since_acc_s = since

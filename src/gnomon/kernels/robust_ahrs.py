@@ -44,12 +44,13 @@ from gnomon.kernels import linalg, quat
 
 __all__ = ["LowPass", "Coefficients", "coefficients", "butter2", "STATE", "LOWPASS_2",
            "LOWPASS_3", "LOWPASS_33", "HARD_IRON", "new_state", "robust_ahrs_step",
-           "robust_ahrs_batch", "ACC_SKIPPED", "MAG_SKIPPED", "GAP"]
+           "robust_ahrs_batch", "ACC_SKIPPED", "MAG_SKIPPED", "GAP", "BIAS_AT_LIMIT"]
 
 # flag bits returned by the step (``flags`` signal of ``run``)
 ACC_SKIPPED = 1
 MAG_SKIPPED = 2
 GAP = 4
+BIAS_AT_LIMIT = 8  # written by the batch loop: a component of the bias at ``bias_clip``
 
 
 # ---------------------------------------------------------------- coefficients
@@ -81,6 +82,8 @@ class Coefficients(NamedTuple):
     rest_th_gyro2: float  # (rad/s)², on |ω - lp(ω)|²
     rest_th_acc2: float  # (m/s²)², on |a - lp(a)|²
     rest_min_s: float
+    rest_th_rate: float  # rad/s, on |lp(ω) - b| (inf-norm): beyond it a rest needs rest_min_large_s
+    rest_min_large_s: float
     # inclination
     acc_lp: LowPass  # the accelerometer in frame I
     # gyro-bias Kalman filter, run on every bias_every-th accelerometer sample
@@ -92,7 +95,8 @@ class Coefficients(NamedTuple):
     w_rest: float  # (rad/s)²: measurement variances
     w_motion: float
     w_vertical: float
-    bias_clip: float  # rad/s: bound on the bias and its innovations
+    bias_clip: float  # rad/s: bound on the bias estimate (and on lp(ω) for a rest)
+    huber: float  # rad/s: Huber threshold of the bias filter's innovations in motion
     # magnetometer, the heading filter run on the mean field of every mag_every samples
     mag_every: int
     ts_mag: float  # the magnetometer's nominal sample time * mag_every
@@ -119,6 +123,7 @@ class Coefficients(NamedTuple):
     r_head: float  # heading KF: measurement variance, random walk per update, per |ω|² dt
     q_head: float
     q_rate: float
+    inv_bias_ref2: float  # 1/(rad/s)²: heading_bias_ref_deg_s⁻² (0: off)
     k_mag_bias: float  # 1/s: heading-rate bias loop (0: off)
 
 
@@ -175,13 +180,15 @@ def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
         rest_bias=bool(p.rest_bias), rest_lp=_lowpass(p.rest_tau_s, ts_s),
         rest_acc_lp=_lowpass(p.rest_tau_s, ts_acc),
         rest_th_gyro2=(p.rest_th_gyro_deg_s * d2r) ** 2, rest_th_acc2=p.rest_th_acc_m_s2 ** 2,
-        rest_min_s=float(p.rest_min_s),
+        rest_min_s=float(p.rest_min_s), rest_th_rate=p.rest_th_rate_deg_s * d2r,
+        rest_min_large_s=float(p.rest_min_large_bias_s),
         acc_lp=_lowpass(p.tau_acc_s, ts_acc),
         motion_bias=bool(p.motion_bias), bias_every=int(p.bias_every),
         bias_lp=_lowpass(p.tau_acc_s, ts_b),
         bias_p0=(p.bias_sigma_init_deg_s * d2r) ** 2, bias_v=bias_v,
         w_rest=pr * pr / bias_v + pr, w_motion=w_motion,
         w_vertical=w_motion / p.bias_vertical_forgetting, bias_clip=p.bias_clip_deg_s * d2r,
+        huber=p.bias_huber_deg_s * d2r,
         mag_every=int(p.mag_every), ts_mag=tsm,
         hi_lambda=math.exp(-tsm / p.hard_iron_tau_s) if p.hard_iron_tau_s > 0 else 0.0,
         hi_reg=float(p.hard_iron_reg), hi_gate=float(p.hard_iron_gate),
@@ -196,7 +203,9 @@ def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
         soft_dip=1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0,
         tau_mag_s=float(p.tau_mag_s), k_mag=k_mag, heading_kf=bool(p.heading_kf),
         r_head=r_head, q_head=r_head * k_mag * k_mag / (1.0 - k_mag) if k_mag < 1.0 else 1e12,
-        q_rate=p.heading_rate_noise_s ** 2, k_mag_bias=float(p.mag_bias_gain_per_s),
+        q_rate=p.heading_rate_noise_s ** 2,
+        inv_bias_ref2=1.0 / (p.heading_bias_ref_deg_s * d2r) ** 2
+        if p.heading_bias_ref_deg_s > 0 else 0.0, k_mag_bias=float(p.mag_bias_gain_per_s),
     )
 
 
@@ -242,6 +251,7 @@ STATE = np.dtype([
     ("rest_acc_lp", LOWPASS_3),
     ("rest_t", np.float64),  # s spent within the thresholds
     ("rest", np.bool_),
+    ("bias_at_limit", np.bool_),  # a component of the bias at ±bias_clip (in the padding)
     # inclination and bias in motion
     ("acc_lp", LOWPASS_3),  # m/s², frame I
     ("acc_rate", np.float64),  # rad/s: sine of the last correction angle / ts
@@ -385,7 +395,9 @@ def rest_gyro(s, c, gx, gy, gz):
 @njit(inline="always")
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
-    threshold of the low-passed specific force."""
+    threshold of the low-passed specific force, or after ``rest_min_large_s`` when the
+    low-passed rate is farther than ``rest_th_rate`` from the bias estimate (a steady rate
+    that is a large bias not yet estimated, or a slow rotation)."""
     lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_acc_lp)
     dx, dy, dz = ax - lx, ay - ly, az - lz
     if dx * dx + dy * dy + dz * dz >= c.rest_th_acc2:
@@ -393,8 +405,11 @@ def rest_acc(s, c, ax, ay, az):
         s.rest = False
     else:
         s.rest_t += c.ts_acc_s
-        if s.rest_t >= c.rest_min_s:
-            s.rest = True
+        if s.rest_t >= c.rest_min_s and not s.rest:
+            g, b = s.gyro_lp, s.bias
+            far = max(abs(g[0] - b[0]), max(abs(g[1] - b[1]), abs(g[2] - b[2])))
+            if far <= c.rest_th_rate or s.rest_t >= c.rest_min_large_s:
+                s.rest = True
 
 
 # ---------------------------------------------------------------- 2. strapdown
@@ -466,29 +481,46 @@ def bias_kf(s, c, R, fx, fy, have_f):
     if c.rest_bias and s.rest:
         g = s.gyro_lp
         bias_update(s, c, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0),
-                    g[0] - b0, g[1] - b1, g[2] - b2, c.w_rest, c.w_rest, c.w_rest)
+                    g[0] - b0, g[1] - b1, g[2] - b2, c.w_rest, c.w_rest, c.w_rest, c.bias_clip)
     elif c.motion_bias and have_f:
         hb0, hb1, hb2 = linalg.mat3_vec(H, b0, b1, b2)
         e0 = -fy / c.ts_acc_s + rb0 - hb0
         e1 = fx / c.ts_acc_s + rb1 - hb1
-        bias_update(s, c, H, e0, e1, -hb2, c.w_motion, c.w_motion, c.w_vertical)
+        bias_update(s, c, H, e0, e1, -hb2, c.w_motion, c.w_motion, c.w_vertical,
+                    c.huber)
 
 
 @njit(inline="always")
-def bias_update(s, c, H, e0, e1, e2, w0, w1, w2):
-    """Kalman update of the bias with the innovation ``e = y - H b`` (clipped), ``H`` a
-    9-tuple, measurement variances ``w`` (diagonal): ``K = P Hᵀ (H P Hᵀ + W)⁻¹``,
-    ``b += K e`` (clipped), ``P -= K (P Hᵀ)ᵀ``, kept symmetric."""
+def bias_update(s, c, H, e0, e1, e2, w0, w1, w2, ei):
+    """Kalman update of the bias with the innovation ``e = y - H b``, ``H`` a 9-tuple,
+    measurement variances ``w`` (diagonal): ``K = P Hᵀ (H P Hᵀ + W)⁻¹``, ``b += K e``
+    (clipped to ``bias_clip``), ``P -= K (P Hᵀ)ᵀ``, kept symmetric.
+
+    Huber weights: a component beyond ``ei`` has its variance multiplied by ``|e_i| / ei``,
+    so that its pull is about that of an innovation clipped to ``ei`` while the
+    covariance shrinks by less (it was only partly used): a large bias not yet estimated
+    keeps the gain that lets it converge, and a single wild innovation moves little."""
     lim = c.bias_clip
-    e0, e1, e2 = linalg.clip(e0, lim), linalg.clip(e1, lim), linalg.clip(e2, lim)
+    a0, a1, a2 = abs(e0), abs(e1), abs(e2)
+    if a0 > ei:
+        w0 *= a0 / ei
+    if a1 > ei:
+        w1 *= a1 / ei
+    if a2 > ei:
+        w2 *= a2 / ei
     P = linalg.mat3_load(s.P)
     PHt = linalg.mat3_mul_bt(P, H)
     S = linalg.mat3_mul(H, PHt)
     r = linalg.inv3(S[0] + w0, S[1], S[2], S[3], S[4] + w1, S[5], S[6], S[7], S[8] + w2)
     K = linalg.mat3_mul(PHt, r[1:])
     b = s.bias
+    at = False
     for i in range(3):
-        b[i] = linalg.clip(b[i] + K[3 * i] * e0 + K[3 * i + 1] * e1 + K[3 * i + 2] * e2, lim)
+        v = b[i] + K[3 * i] * e0 + K[3 * i + 1] * e1 + K[3 * i + 2] * e2
+        if abs(v) >= lim:
+            v, at = math.copysign(lim, v), True
+        b[i] = v
+    s.bias_at_limit = at
     KHP = linalg.mat3_mul_bt(K, PHt)
     for i in range(3):
         for j in range(3):
@@ -612,14 +644,27 @@ def new_field(s, c, cur_n, cur_d):
 
 
 @njit(inline="always")
-def heading_gain(s, c, soft):
-    """The heading gain of this update: first-order ``k_mag`` or the heading KF's gain;
-    0 while a disturbance is rejected (reduced after ``mag_max_reject_s``), divided by the
-    soft de-weighting ``soft``; at least the running-mean gain at start."""
+def vertical_bias_var(s, R):
+    """Variance (rad/s)² of the bias estimate about the vertical: ``uᵀ P u`` with ``u``
+    the third row of ``R`` = R_6b (up in body coordinates)."""
+    P = s.P
+    v = 0.0
+    for i in range(3):
+        for j in range(3):
+            v += R[6 + i] * P[i, j] * R[6 + j]
+    return v
+
+
+@njit(inline="always")
+def heading_gain(s, c, soft, p_bv):
+    """The heading gain of this update: first-order ``k_mag`` or the heading KF's gain
+    (its random walk raised by the vertical bias variance ``p_bv``, (rad/s)²); 0 while a
+    disturbance is rejected (reduced after ``mag_max_reject_s``), divided by the soft
+    de-weighting ``soft``; at least the running-mean gain at start."""
     tsm = c.ts_mag
     k, r_head = c.k_mag, c.r_head
     if c.heading_kf:
-        s.p_head += c.q_head + c.q_rate * s.rot2
+        s.p_head += c.q_head * (1.0 + p_bv * c.inv_bias_ref2) + c.q_rate * s.rot2
     s.rot2 = 0.0
     if c.mag_rejection:
         if s.mag_disturbed:
@@ -668,7 +713,7 @@ def magnetometer(s, c, R, mx, my, mz):
         soft = new_field(s, c, cur_n, cur_d)
     dis = wrap(math.atan2(ex, ey) - s.delta)
     s.mag_dis = dis
-    k = heading_gain(s, c, soft)
+    k = heading_gain(s, c, soft, vertical_bias_var(s, R))
     s.k_mag_used = k
     d = wrap(s.delta + k * dis)
     s.delta = d
@@ -676,9 +721,16 @@ def magnetometer(s, c, R, mx, my, mz):
     s.sin_half_delta = math.sin(0.5 * d)
     if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:
         # heading-rate bias: integral action about the vertical (third row of R_6b)
-        db = c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag
+        # dis < 0: the field turned clockwise in frame 6, i.e. frame 6 turned
+        # counter-clockwise about up too fast: the bias along up is too small
+        db = -c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag
+        at = False
         for i in range(3):
-            s.bias[i] = linalg.clip(s.bias[i] + db * R[6 + i], c.bias_clip)
+            v = s.bias[i] + db * R[6 + i]
+            if abs(v) >= c.bias_clip:
+                v, at = math.copysign(c.bias_clip, v), True
+            s.bias[i] = v
+        s.bias_at_limit = at
 
 
 # ---------------------------------------------------------------- the step
@@ -721,7 +773,8 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
 
     Outputs: ``q_out`` (N, 4) ``q_nb`` (ENU from body), ``bias_out`` (N, 3) rad/s,
     ``rest_out``, ``dist_out`` (N,) bool, ``acc_rate_out`` rad/s, ``k_mag_out`` (N,),
-    ``hi_out`` (N, 3) hard-iron offset in use, ``flags_out`` (N,) int bits.
+    ``hi_out`` (N, 3) hard-iron offset in use, ``flags_out`` (N,) int bits (uint8: the
+    step's and ``BIAS_AT_LIMIT``).
     """
     s = state[0]
     for i in range(dt.shape[0]):
@@ -731,6 +784,8 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
         q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = quat.mul(
             s.cos_half_delta, 0.0, 0.0, s.sin_half_delta, q6[0], q6[1], q6[2], q6[3])
         bias_out[i, 0], bias_out[i, 1], bias_out[i, 2] = s.bias[0], s.bias[1], s.bias[2]
+        if s.bias_at_limit:
+            f |= BIAS_AT_LIMIT
         rest_out[i] = s.rest
         dist_out[i] = s.mag_disturbed
         acc_rate_out[i] = s.acc_rate
