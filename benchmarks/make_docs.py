@@ -15,7 +15,9 @@ tables is typed by hand.
 JSON results (between ``<!-- tyrex:start -->`` and ``<!-- tyrex:end -->``). The ESKF page
 (``docs/estimators/eskf.md``) gets its results (``eskf-results``: BROAD per trial, tyrex
 means) from the same runs and its tuning table (``eskf-tuning``) from
-``docs/figures/defaults_tuning.json`` (``benchmarks/defaults_tuning.py``).
+``docs/figures/defaults_tuning.json`` (``benchmarks/defaults_tuning.py``). With the tyrex
+data set, ``docs/calibration.md`` gets its table (``calibration-tyrex``) from the same
+benchmark with ``--mag raw --mag-calibration recording|self``.
 """
 
 from __future__ import annotations
@@ -209,6 +211,34 @@ def eskf_results(broad: dict, tyrex: dict | None) -> str:
     return "\n".join(lines)
 
 
+def calibration_section(runs: dict[str, dict]) -> str:
+    """The tyrex table of ``docs/calibration.md``: mean total RMSE per magnetometer
+    (``runs``: label -> ``gnomon benchmark tyrex --json``) and what the calibrations
+    were (models, coverage, residual)."""
+    ms = [m for m in ("robust-ahrs", "eskf-r3", "eskf-r6", "mahony", "vqf", "vqf-offline")
+          if all(m in r["mean"] for r in runs.values())]
+    n = len({r["trial"] for r in next(iter(runs.values()))["trials"]})
+    lines = [f"Mean over the {n} trials of the total RMSE (deg):", "",
+             "| magnetometer | " + " | ".join(ms) + " |", "| --- |" + " ---: |" * len(ms)]
+    for label, r in runs.items():
+        lines.append(f"| {label} | " + " | ".join(f"{r['mean'][m]['total_deg']:.2f}"
+                                                 for m in ms) + " |")
+    for label, r in runs.items():
+        cals = r.get("calibrations")
+        if not cals:
+            continue
+        models: dict[str, int] = {}
+        for c in cals:
+            models[c["model"]] = models.get(c["model"], 0) + 1
+        cov = [c["coverage"] for c in cals]
+        res = [c["residual_uT"] for c in cals]
+        lines += ["", f"{label}: model " + ", ".join(f"{k} on {v}" for k, v in models.items())
+                  + f" trials; applied on {sum(bool(c['applied']) for c in cals)} of "
+                  f"{len(cals)}; coverage {min(cov):.2f}-{max(cov):.2f}; residual "
+                  f"{min(res):.2f}-{max(res):.2f} µT."]
+    return "\n".join(lines)
+
+
 def replace_section(text: str, name: str, body: str) -> str:
     """``text`` with what lies between ``<!-- name:start -->`` and ``<!-- name:end -->``
     replaced by ``body`` (unchanged when the markers are missing)."""
@@ -238,6 +268,15 @@ def main() -> None:
         cal = gnomon_json("benchmark", "tyrex", "--data", str(tyrex))
         raw = gnomon_json("benchmark", "tyrex", "--data", str(tyrex), "--mag", "raw")
         tyrex_text = tyrex_section(cal, raw, tyrex.name)
+        runs = {"OS-calibrated": cal, "raw (robust-ahrs: its online hard-iron estimate only)":
+                raw}
+        for mode, label in (("recording", "raw + gnomon, calibration recording"),
+                            ("self", "raw + gnomon, self-calibration")):
+            runs[label] = gnomon_json("benchmark", "tyrex", "--data", str(tyrex), "--mag",
+                                      "raw", "--mag-calibration", mode)
+        page = ROOT / "docs" / "calibration.md"
+        page.write_text(replace_section(page.read_text(), "calibration-tyrex",
+                                        calibration_section(runs)))
     elif "<!-- tyrex:start -->" in old_page:  # keep what was measured before
         tyrex_text = old_page.split("<!-- tyrex:start -->\n", 1)[1].split(
             "\n<!-- tyrex:end -->", 1)[0]

@@ -76,6 +76,29 @@ def cmd_filters(args) -> int:
     return 0
 
 
+#: phone exports with an OS-calibrated and a raw magnetometer (``mag=`` of their reader)
+_PHONE_FORMATS = ("tyrex", "sensorlogger")
+
+
+def _raw_phone_mag(args, why: str) -> None:
+    """``--phone-mag raw`` when not given and the input is a phone export: a magnetometer
+    calibration is fitted to (and corrects) the raw magnetometer, never the one the OS
+    already corrected. Says so on stderr."""
+    from gnomon.io import detect_format
+
+    if getattr(args, "phone_mag", None) is not None:
+        return
+    try:
+        fmt = getattr(args, "format", "auto")
+        fmt = detect_format(args.input) if fmt == "auto" else fmt
+    except InputError:
+        return  # the reader will say what is wrong with the input
+    if fmt in _PHONE_FORMATS:
+        args.phone_mag = "raw"
+        print(f"note: {why}: the phone's raw magnetometer (--phone-mag raw; "
+              f"--phone-mag calibrated for the OS-calibrated one)", file=sys.stderr)
+
+
 def _read_input(args):
     from gnomon.io import read
 
@@ -85,6 +108,8 @@ def _read_input(args):
     for opt in ("gyro_unit", "accel_unit", "mag_unit", "time_unit"):
         if getattr(args, opt, None):
             csv_opts[opt] = getattr(args, opt)
+    if getattr(args, "phone_mag", None):  # phone exports: which magnetometer file
+        csv_opts["mag"] = args.phone_mag
     return read(args.input, format=args.format, **csv_opts, **_log_options(args))
 
 
@@ -148,12 +173,19 @@ def cmd_estimate(args) -> int:
     from gnomon.estimators import registry
     from gnomon.metrics import score
 
+    if args.mag_calibration:
+        _raw_phone_mag(args, "--mag-calibration corrects")
     rec = _read_input(args)
+    cal_summary = None
+    if args.mag_calibration:
+        rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
     est = registry.create(args.filter, _params(args.param)).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
                "params": est.params,
                "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
                                                         {}))}
+    if cal_summary is not None:
+        summary["mag_calibration"] = cal_summary
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
     matched = None
@@ -176,6 +208,10 @@ def cmd_estimate(args) -> int:
         print_json(summary)
         return 0
     print(f"{args.filter} on {args.input}: {len(rec)} samples")
+    if cal_summary is not None:
+        print(f"  magnetometer calibration ({cal_summary['from']}): {cal_summary['model']}, "
+              f"offset {[round(v, 2) for v in cal_summary['offset_uT']]} uT, coverage "
+              f"{cal_summary['coverage']:.2f}, residual {cal_summary['residual_uT']:.2f} uT")
     for w in summary["warnings"]:
         print(f"  warning: {w['message']}")
     if "errors" in summary:
@@ -195,6 +231,79 @@ def cmd_estimate(args) -> int:
         if key in summary:
             print(f"  wrote {summary[key]}")
     return 0
+
+
+def _apply_mag_calibration(rec, which: str):
+    """``gnomon.calibration.apply_mag_calibration(rec, cal)`` with ``cal`` from a JSON
+    file (``gnomon calibrate mag --out``) or, for ``self``, ``calibrate_mag(rec,
+    require_ok=True)``: (the corrected recording, the calibration's report)."""
+    from gnomon.calibration import apply_mag_calibration, calibrate_mag, load_mag_calibration
+
+    if which == "self":
+        cal = calibrate_mag(rec, require_ok=True)
+    else:
+        cal = load_mag_calibration(which)
+    return apply_mag_calibration(rec, cal), {"from": which, **cal.to_dict()}
+
+
+def cmd_calibrate_mag(args) -> int:
+    """``gnomon.calibration.calibrate_mag(gnomon.io.read(path), field_uT=, location=,
+    model=)``, ``save_mag_calibration(out, cal)``, ``plot_mag_calibration(...)``. Exit
+    status 1 when the calibration is refused (the report says why)."""
+    from gnomon.calibration import (
+        calibrate_mag,
+        mag_uT_of,
+        plot_mag_calibration,
+        save_mag_calibration,
+    )
+
+    _raw_phone_mag(args, "calibrating")
+    rec = _read_input(args)
+    location = None
+    if args.location:
+        parts = args.location.split(",")
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            raise InputError(f"expected LAT,LON[,ALT_M] in degrees and m, got "
+                             f"{args.location!r}", field="--location") from None
+        if len(values) not in (2, 3):
+            raise InputError(f"expected LAT,LON[,ALT_M], got {args.location!r}",
+                             field="--location")
+        if not args.date:
+            raise InputError("--location needs --date YYYY-MM-DD (the field changes with "
+                             "time)", field="--date")
+        location = {"latitude_deg": values[0], "longitude_deg": values[1],
+                    "altitude_m": values[2] if len(values) == 3 else 0.0, "date": args.date}
+    elif args.date:
+        raise InputError("--date goes with --location", field="--date")
+    cal = calibrate_mag(rec, field_uT=args.field_uT, location=location, model=args.model,
+                        gyro=not args.no_gyro)
+    report = {**cal.to_dict(), "input": str(args.input)}
+    if args.out:
+        save_mag_calibration(args.out, cal)
+        report["out"] = str(args.out)
+    if args.plot:
+        plot_mag_calibration(mag_uT_of(rec), cal, args.plot, title=str(args.input))
+        report["plot"] = str(args.plot)
+    if args.json:
+        print_json(report)
+    else:
+        o = ", ".join(f"{v:.2f}" for v in cal.offset_uT)
+        print(f"magnetometer calibration of {args.input}: {cal.n_samples} samples, "
+              f"{cal.model} model, {'ok' if cal.ok else 'REFUSED'}")
+        if not cal.ok:
+            print(f"  reason: {cal.reason}")
+        print(f"  offset_uT [{o}]")
+        print("  soft_iron " + "\n            ".join(
+            "[" + ", ".join(f"{v:8.5f}" for v in row) + "]" for row in cal.soft_iron))
+        print(f"  field {cal.field_uT:.2f} uT ({cal.field_source}); residual "
+              f"{cal.residual_uT:.2f} uT (raw spread {cal.raw_residual_uT:.2f} uT); coverage "
+              f"{cal.coverage:.2f}; condition {cal.condition:.3g}")
+        for key in ("out", "plot"):
+            if key in report:
+                print(f"  wrote {report[key]}")
+    return 0 if cal.ok else 1
 
 
 def _limit_warnings(est, limits: dict) -> list[dict]:
@@ -243,12 +352,19 @@ def cmd_benchmark(args) -> int:
                          "itself: gnomon benchmark DIR", field="--data")
     if args.mag is not None and args.dataset != "tyrex":
         raise InputError("--mag applies to the tyrex benchmark", field="--mag")
+    if args.mag_calibration is not None and args.dataset != "tyrex":
+        raise InputError("--mag-calibration applies to the tyrex benchmark",
+                         field="--mag-calibration")
+    if args.mag_calibration is not None and args.mag == "calibrated":
+        raise InputError("--mag-calibration corrects the raw magnetometer: use --mag raw",
+                         field="--mag-calibration")
     if args.dataset == "broad":
         res = run_broad(args.data, filters=filters, anchors=anchors, progress=progress,
                         align=args.align or ())
     elif args.dataset == "tyrex":
         res = run_tyrex(args.data, filters=filters, anchors=anchors, align=args.align,
-                        mag=args.mag or "calibrated", progress=progress)
+                        mag=args.mag or ("raw" if args.mag_calibration else "calibrated"),
+                        progress=progress, mag_calibration=args.mag_calibration)
     else:
         res = run_benchmark(args.dataset, filters=filters, anchors=anchors,
                             align=args.align or (), progress=progress)
@@ -495,6 +611,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--compare", choices=["onboard"],
                    help="onboard: the RMS difference from the device's own attitude estimate "
                         "(PX4, ArduPilot, phone OS, Xsens), heading references matched")
+    s.add_argument("--mag-calibration", metavar="CAL.json|self",
+                   help="correct the magnetometer first: a calibration from `gnomon "
+                        "calibrate mag --out` or 'self' (fitted to this log's own samples)")
+    s.add_argument("--phone-mag", choices=["calibrated", "raw"],
+                   help="phone exports (tyrex, Sensor Logger): the OS-calibrated "
+                        "magnetometer (the reader's default) or the raw one")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
     g = s.add_argument_group("CSV options")
     g.add_argument("--columns", help="column map NAME=COLUMN,... (names: t, gyr_x, ..., mag_z)")
@@ -503,6 +625,43 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
     g.add_argument("--time-unit", help="s (default), ms, us or ns")
     s.set_defaults(func=cmd_estimate)
+
+    s = sub.add_parser("calibrate", help="sensor calibration from a recording or log "
+                                         "(mag: hard and soft iron)")
+    csub = s.add_subparsers(dest="sensor", metavar="SENSOR")
+    c = csub.add_parser(
+        "mag", help="magnetometer hard/soft iron by a constrained ellipsoid fit, with a "
+                    "quality report; exit status 1 when refused",
+        description="Fit offset (hard iron) and a symmetric soft-iron matrix to the log's "
+                    "magnetometer: h = S (m - o), |h| = B. Move the device through as many "
+                    "directions as you can (docs/calibration.md).")
+    c.add_argument("input", help="recording file or folder (any format gnomon reads)")
+    c.add_argument("--format", default="auto", choices=list(FORMATS))
+    _add_log_options(c)
+    c.add_argument("--out", help="write the calibration as JSON (for gnomon estimate "
+                                 "--mag-calibration)")
+    c.add_argument("--plot", help="write a figure of raw and corrected samples, e.g. cal.png")
+    c.add_argument("--json", action="store_true", help="print the report as JSON")
+    c.add_argument("--field-uT", type=float, dest="field_uT",
+                   help="the local field magnitude B in uT (default: from --location/--date, "
+                        "else the data's own scale)")
+    c.add_argument("--location", metavar="LAT,LON[,ALT_M]",
+                   help="where the log was taken (deg, deg, m): B from IGRF-14")
+    c.add_argument("--date", help="when (YYYY-MM-DD), with --location")
+    c.add_argument("--model", default="auto", choices=["auto", "full", "scale", "offset"],
+                   help="auto (default): the richest model the directions visited determine")
+    c.add_argument("--phone-mag", choices=["calibrated", "raw"],
+                   help="phone exports (tyrex, Sensor Logger): the raw magnetometer (what a "
+                        "calibration needs) or the OS-calibrated one (the reader's default)")
+    c.add_argument("--no-gyro", action="store_true",
+                   help="do not use the gyro (start, gate and fallback for the offset)")
+    g = c.add_argument_group("CSV options")
+    g.add_argument("--columns", help="column map NAME=COLUMN,...")
+    g.add_argument("--gyro-unit", help="rad/s (default) or deg/s")
+    g.add_argument("--accel-unit", help="m/s^2 (default) or g")
+    g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
+    g.add_argument("--time-unit", help="s (default), ms, us or ns")
+    c.set_defaults(func=cmd_calibrate_mag)
 
     s = sub.add_parser("inspect", help="what a log holds: sensors, rates, gaps, units, the "
                                        "device's own estimate, topics/instances")
@@ -539,6 +698,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "broad and DIR none)")
     s.add_argument("--mag", choices=["calibrated", "raw"],
                    help="tyrex: the OS-calibrated magnetometer (default) or the raw one")
+    s.add_argument("--mag-calibration", choices=["self", "recording"],
+                   help="tyrex, raw magnetometer: correct it by gnomon's calibration (gnomon "
+                        "calibrate mag) fitted to each trial's own samples (self) or to the "
+                        "data set's calibration recording of that phone and day (recording)")
     s.add_argument("--plot", help="write a bar chart, e.g. broad.png (tyrex, DIR: per group)")
     s.add_argument("--json", action="store_true", help="print the JSON result")
     s.set_defaults(func=cmd_benchmark)
