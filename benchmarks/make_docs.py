@@ -133,8 +133,9 @@ def tyrex_section(cal: dict, raw: dict | None, data_name: str) -> str:
         f"{cal['truth']['declination_deg']:+.3f} deg): the north a magnetometer sees. No "
         "heading offset",
         "is removed from any method. `phone` is the phone's own estimate (Android rotation",
-        "vector, iOS CoreMotion attitude), `vqf-offline` VQF's acausal variant (a bound, not",
-        "a causal filter).",
+        "vector, iOS CoreMotion attitude). Names ending in `-offline` see the whole log",
+        "(forward and backward passes; `gnomon estimate --offline`): compare them with",
+        "`vqf-offline`, VQF's acausal variant, not with the causal filters.",
         "",
         "Two properties of the phones' data weigh on the iPhone 5 columns (`docs/logs.md`):",
         "its gyro is the raw one, with the bias in the table below (VQF's default bias",
@@ -239,6 +240,23 @@ def calibration_section(runs: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+def offline_section(broad: dict, tyrex: dict | None) -> str:
+    """The offline page's table: mean total RMSE of the offline estimators, the causal
+    filters they start from and VQF's two forms, on BROAD and (when run) the phones."""
+    ms = ["eskf-offline", "robust-ahrs-offline", "vqf-offline", "eskf-r3", "robust-ahrs",
+          "vqf"]
+    runs = {"BROAD": broad, **({"tyrex (OS-calibrated magnetometer)": tyrex} if tyrex
+                                else {})}
+    lines = ["| method | " + " | ".join(f"{k}, {len({r['trial'] for r in v['trials']})} "
+                                         f"trials" for k, v in runs.items()) + " |",
+             "| --- |" + " ---: |" * len(runs)]
+    for m in ms:
+        cells = [f"{v['mean'][m]['total_deg']:.3f}" if m in v["mean"] else "–"
+                 for v in runs.values()]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def replace_section(text: str, name: str, body: str) -> str:
     """``text`` with what lies between ``<!-- name:start -->`` and ``<!-- name:end -->``
     replaced by ``body`` (unchanged when the markers are missing)."""
@@ -282,6 +300,10 @@ def main() -> None:
             "\n<!-- tyrex:end -->", 1)[0]
     else:
         tyrex_text = "## Smartphones (tyrex)\n\nNot run: the tyrex data set was not found."
+    offline_page = ROOT / "docs" / "estimators" / "offline.md"
+    offline_page.write_text(replace_section(
+        offline_page.read_text(), "offline-results",
+        offline_section(broad, cal if tyrex is not None else None)))
     eskf_page = ROOT / "docs" / "estimators" / "eskf.md"
     text = replace_section(eskf_page.read_text(), "eskf-results",
                            eskf_results(broad, cal if tyrex is not None else None))
@@ -306,8 +328,10 @@ Generated on {today} by `python benchmarks/make_docs.py` from the JSON of
 ## Accuracy on BROAD
 
 BROAD (Laidig, Caruso, Cereatti, Seel, *Data* 6(7):72, 2021): {n_trials}
-trials, every method with its default parameters, causal, the benchmark's own metric
-(RMSE over the movement phases with a valid truth; no alignment).
+trials, every method with its default parameters, the benchmark's own metric (RMSE over
+the movement phases with a valid truth; no alignment). Causal, except the names ending in
+`-offline` (gnomon's and VQF's offline estimators: forward and backward over the whole
+log; compare them with each other).
 
 {broad_tables(broad)}
 

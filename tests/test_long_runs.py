@@ -32,7 +32,7 @@ def static_imu():
     return rec, q_nb
 
 
-@pytest.mark.parametrize("name", [n for n in registry.names()
+@pytest.mark.parametrize("name", [n for n in registry.names(offline=False)
                                   if set(registry.get(n).needs) <= IMU])
 def test_ten_million_static_samples(name, static_imu):
     rec, q_nb = static_imu

@@ -72,7 +72,7 @@ def test_outputs_finite_unit_quaternions(name, seed, n, gap, zero_rows, gyro_sca
                 assert np.all(np.isfinite(v)), key
 
 
-@pytest.mark.parametrize("name", names())
+@pytest.mark.parametrize("name", registry.names(offline=False))  # offline: the whole log
 def test_split_run_resumes_exactly(name):
     cls = registry.get(name)
     if not cls.state_fields:

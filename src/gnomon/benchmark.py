@@ -78,7 +78,9 @@ __all__ = ["run_broad", "run_tyrex", "run_benchmark", "default_filters", "parse_
 
 
 def default_filters() -> tuple[str, ...]:
-    """The gnomon filters run by default: every registered IMU filter (``kind = "imu"``)."""
+    """The gnomon filters run by default: every registered IMU filter (``kind = "imu"``),
+    the causal ones and the offline ones (``-offline``: they see the whole log; compare
+    them with the ``vqf-offline`` row)."""
     return tuple(registry.names("imu"))
 
 
@@ -150,7 +152,10 @@ def _methods(filters: Sequence[str], anchors: Sequence[str] | None) -> list[_Met
             return registry.create(name).run(rec).q
 
         methods.append((name, run_filter, _always))
-    names = anchors_mod.available() if anchors is None else list(anchors)
+    if anchors is None:  # the causal libraries and VQF's offline form, where installed
+        anchors = anchors_mod.available() + [a for a in ("vqf-offline",)
+                                             if anchors_mod.installed(a)]
+    names = list(anchors)
     known = [*anchors_mod.ANCHORS, *anchors_mod.EXTRA_ANCHORS, *_ALIASES]
     for name in names:
         target = _ALIASES.get(name, name)
@@ -294,9 +299,10 @@ def run_broad(data_dir, filters: Sequence[str] | None = None,
               anchors: Sequence[str] | None = None, progress: bool = False,
               align: Sequence[str] = ()) -> dict:
     """Run ``filters`` (registry names) and ``anchors`` (None: every installed causal
-    library) on every BROAD trial in ``data_dir`` (``.hdf5`` and ``.mat``); returns the
-    JSON object above. ``align`` (default none, BROAD's protocol): module docstring; when
-    given, rows carry ``lag_s``/``misalignment_deg`` and ``alignment`` is added."""
+    library and ``vqf-offline``) on every BROAD trial in ``data_dir`` (``.hdf5`` and
+    ``.mat``); returns the JSON object above. ``align`` (default none, BROAD's protocol):
+    module docstring; when given, rows carry ``lag_s``/``misalignment_deg`` and
+    ``alignment`` is added."""
     from gnomon.io import read
     from gnomon.io.broad import broad_groups, broad_trials
 
@@ -459,9 +465,10 @@ def run_benchmark(data_dir, filters: Sequence[str] | None = None,
                   progress: bool = False) -> dict:
     """Every recording under ``data_dir`` that gnomon reads (any format, any depth up to
     4) and that holds a truth (``q_true``): ``filters`` (default every IMU filter),
-    ``anchors`` (default every installed causal library and ``onboard``, the device's own
-    estimate, where the recording has one), ``align`` (default none). Recordings without
-    a truth, and files gnomon cannot read, are listed in ``skipped``. Returns BROAD's keys
+    ``anchors`` (default every installed causal library, ``vqf-offline`` and ``onboard``,
+    the device's own estimate, where the recording has one), ``align`` (default none).
+    Recordings without a truth, and files gnomon cannot read, are listed in ``skipped``.
+    Returns BROAD's keys
     (rows with ``samples``) plus ``benchmark``, ``align``, ``alignment`` (when aligned)
     and ``skipped``."""
     from gnomon.io import read
@@ -485,7 +492,8 @@ def run_benchmark(data_dir, filters: Sequence[str] | None = None,
     if not recs:
         raise InputError("no recording with a truth (q_true) found", file=str(root))
     if anchors is None:
-        anchors = anchors_mod.available() + ["onboard"]
+        anchors = anchors_mod.available() + [a for a in ("vqf-offline",)
+                                             if anchors_mod.installed(a)] + ["onboard"]
     methods = _methods(default_filters() if filters is None else filters, anchors)
     names = [m for m, _, _ in methods]
     rows, errors, timing, alignment = _run([(n, lambda r=r: r) for n, r in recs], methods,

@@ -168,6 +168,29 @@ def cmd_convert(args) -> int:
     return 0
 
 
+#: ``gnomon estimate --offline`` without ``--filter``: the best offline estimator on the
+#: benchmarks (BROAD and the tyrex phones together, relative to VQF offline:
+#: docs/benchmarks.md), and the one whose uncertainty is checked (NEES)
+OFFLINE_DEFAULT = "eskf-offline"
+
+
+def _estimate_filter(name: str | None, offline: bool) -> str:
+    """The filter ``gnomon estimate`` runs: ``name`` (default robust-ahrs) or, with
+    ``offline``, its ``-offline`` form (default ``OFFLINE_DEFAULT``)."""
+    from gnomon.estimators import registry
+
+    if not offline:
+        return name or "robust-ahrs"
+    if name is None:
+        return OFFLINE_DEFAULT
+    if getattr(registry.get(name), "offline", False):
+        return name
+    if f"{name}-offline" in registry.names():
+        return f"{name}-offline"
+    raise InputError(f"{name!r} has no offline form; offline filters: "
+                     f"{', '.join(registry.names(offline=True))}", field="--filter")
+
+
 def cmd_estimate(args) -> int:
     """``registry.create(name, params).run(gnomon.io.read(path))`` and ``metrics.score``."""
     from gnomon.estimators import registry
@@ -179,6 +202,7 @@ def cmd_estimate(args) -> int:
     cal_summary = None
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
+    args.filter = _estimate_filter(args.filter, args.offline)
     est = registry.create(args.filter, _params(args.param)).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
                "params": est.params,
@@ -599,8 +623,13 @@ def build_parser() -> argparse.ArgumentParser:
                                         "text, MATLAB .mat)")
     s.add_argument("input", help="recording file or folder (format from the content; "
                                  "see --format)")
-    s.add_argument("--filter", default="robust-ahrs",
-                   help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data)")
+    s.add_argument("--filter", default=None,
+                   help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data; "
+                        f"with --offline {OFFLINE_DEFAULT})")
+    s.add_argument("--offline", action="store_true",
+                   help="the most accurate attitude the whole log allows: an offline filter "
+                        "(forward and backward passes; --filter NAME picks NAME-offline), with "
+                        "a per-axis uncertainty (drawn as a band by --plot)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
     from gnomon.io import FORMATS
 
@@ -687,11 +716,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a named benchmark (with --data) or a folder of recordings with truth")
     s.add_argument("--data", help="directory of the named benchmark's data set")
     s.add_argument("--filters", help="comma-separated gnomon filters (default: every IMU filter)")
-    s.add_argument("--anchors", help="reference rows: vqf,imufusion,ahrs-madgwick and, where "
-                                     "the data has them, vqf-offline, phone (tyrex) or onboard "
-                                     "(default: broad the installed libraries; tyrex "
-                                     "vqf,vqf-offline,phone,ahrs-madgwick,imufusion; DIR the "
-                                     "libraries and onboard; 'none' for none)")
+    s.add_argument("--anchors", help="reference rows: vqf,vqf-offline,imufusion,ahrs-madgwick "
+                                     "and, where the data has them, phone (tyrex) or onboard "
+                                     "(default: broad the installed libraries and "
+                                     "vqf-offline; tyrex vqf,vqf-offline,phone,ahrs-madgwick,"
+                                     "imufusion; DIR the libraries, vqf-offline and onboard; "
+                                     "'none' for none)")
     s.add_argument("--align", help="correct the truth before scoring, fitted per trial from "
                                    "the gyro: 'lag' (time offset), 'body' (sensor-to-marker "
                                    "rotation), 'body,lag' or 'none' (default: tyrex body,lag; "

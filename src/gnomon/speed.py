@@ -9,10 +9,12 @@ excluded by a warm-up call, freed memory kept for reuse by every method, see
 ``_freed_memory_kept``):
 
 * every registered gnomon filter that runs on gyro + accelerometer + magnetometer
-  (its batch ``run(recording)``, compiled kernels);
+  (its batch ``run(recording)``, compiled kernels), the offline ones (``-offline``:
+  forward and backward over the whole recording) included;
 * ``gnomon-batch-mahony-R{runs}``: ``R`` independent Mahony filters in one call
   (``gnomon.estimators.mahony.run_batch``), one Monte Carlo run per filter;
 * when installed: ``vqf-batch`` and ``basicvqf-batch`` (``updateBatch``, C++),
+  ``vqf-offline`` (``offlineVQF``, C++: the reference of the ``-offline`` filters),
   ``imufusion`` (one ``update`` call per sample from Python, as users run it) and
   ``ahrs-madgwick`` (pure Python). Slow methods are timed on a prefix of the
   recording (``samples_timed`` says how many samples).
@@ -89,6 +91,8 @@ def _methods(rec, runs: int):
         methods["vqf-batch"] = (lambda: vqf.VQF(ts).updateBatch(gyr, accel, magn), len(rec))
         methods["basicvqf-batch"] = (
             lambda: vqf.BasicVQF(ts).updateBatch(gyr, accel, magn), len(rec))
+        # the reference of the offline estimators (``-offline``): forward-backward
+        methods["vqf-offline"] = (lambda: vqf.offlineVQF(gyr, accel, magn, ts), len(rec))
     from gnomon.recording import Recording
 
     def prefix(n):

@@ -177,6 +177,9 @@ class Estimator:
     #: measurement is used only in its arrival row); a filter that does not refuses a
     #: multi-rate recording rather than misreading it.
     multi_rate: ClassVar[bool] = False
+    #: Whether the filter needs the whole recording (forward and backward passes; no
+    #: streaming ``update``): its name ends in ``-offline``, causal benchmarks leave it out.
+    offline: ClassVar[bool] = False
     #: Attributes that make up the evolving state (saved by ``get_state``).
     state_fields: ClassVar[tuple[str, ...]] = ()
 

@@ -543,14 +543,11 @@ class Eskf(Estimator):
         return np.diag([ra, ra, p.mag_noise**2 * fm / h**2])
 
     # ------------------------------------------------------------ compiled batch
-    def run(self, rec: Recording) -> Estimate:
-        """Filter a whole recording (compiled kernel), continuing from the current state
-        (a fresh or reset filter starts anew).
-
-        Initialisation: TRIAD on the mean accelerometer and magnetometer over the
-        first ``init_time`` seconds (at least one sample); the reference field
-        ``[0, H, -Z]`` and ``|B0|`` are taken from the same samples.
-        """
+    def _kernel_inputs(self, rec: Recording):
+        """The compiled kernel's ``Inputs`` for ``rec`` (checked), the filter initialised
+        when fresh (TRIAD, below): the gyro, each other sensor on the gyro's time base
+        (NaN rows: no new sample), the magnetometer normalised by ``|B0|``, the intervals.
+        Shared with the offline smoother (``gnomon.estimators.eskf_offline``)."""
         from gnomon.kernels import eskf as kern
 
         self.check_inputs(rec)
@@ -570,9 +567,22 @@ class Eskf(Estimator):
         # rows only predict
         mag = rec.on_time_base("mag") * to_tesla  # a new array: scaled in place below
         mag /= self.b0_mag
-        inputs = kern.Inputs(np.ascontiguousarray(rec.gyro, float),
-                             np.ascontiguousarray(rec.on_time_base("accel"), float),
-                             np.ascontiguousarray(mag), dt)
+        return kern.Inputs(np.ascontiguousarray(rec.gyro, float),
+                           np.ascontiguousarray(rec.on_time_base("accel"), float),
+                           np.ascontiguousarray(mag), dt)
+
+    def run(self, rec: Recording) -> Estimate:
+        """Filter a whole recording (compiled kernel), continuing from the current state
+        (a fresh or reset filter starts anew).
+
+        Initialisation: TRIAD on the mean accelerometer and magnetometer over the
+        first ``init_time`` seconds (at least one sample); the reference field
+        ``[0, H, -Z]`` and ``|B0|`` are taken from the same samples.
+        """
+        from gnomon.kernels import eskf as kern
+
+        p = self.params
+        inputs = self._kernel_inputs(rec)
         out = kern.new_outputs(len(rec))
         kern.run_batch(inputs, self.state, kern.coefficients(p), out)
         self.t_last = float(rec.t[-1])

@@ -28,17 +28,20 @@ _ENTRIES: dict[str, str] = {
     "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
     "mekf-spacecraft": "gnomon.estimators.mekf_spacecraft:MEKFSpacecraft",
     "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
+    "eskf-offline": "gnomon.estimators.eskf_offline:EskfOffline",
+    "robust-ahrs-offline": "gnomon.estimators.robust_ahrs_offline:RobustAHRSOffline",
 }
 
 
-def names(kind: str | None = None) -> list[str]:
+def names(kind: str | None = None, offline: bool | None = None) -> list[str]:
     """Registered filter names, sorted; ``kind`` ``"imu"`` or ``"spacecraft"`` selects one
-    family."""
-    if kind is None:
-        return sorted(_ENTRIES)
-    if kind not in KINDS:
+    family; ``offline`` True / False only the filters that need the whole log (names
+    ending in ``-offline``: forward-backward over a recording) / only the causal ones."""
+    if kind is not None and kind not in KINDS:
         raise InputError(f"expected one of {', '.join(KINDS)}, got {kind!r}", field="kind")
-    return [n for n in sorted(_ENTRIES) if get(n).kind == kind]
+    return [n for n in sorted(_ENTRIES)
+            if (kind is None or get(n).kind == kind)
+            and (offline is None or bool(getattr(get(n), "offline", False)) == offline)]
 
 
 def get(name: str):

@@ -23,14 +23,16 @@ def plot_estimate(rec, est, path, compare=None) -> Path:
     own, its heading matched) drawn dashed beside the attitude, with BROAD's heading and
     inclination difference in a panel of their own."""
     from gnomon.metrics import axis_errors_rad, broad_errors_rad
-    from gnomon.rotation import euler_from_quat
+    from gnomon.rotation import euler_from_quat, quat_conj, quat_mul
 
     plt = _plt()
     has_truth = rec.q_true is not None
     bias = est.signals.get("bias_rad_s")
     flags = {k: v for k, v in est.signals.items()
              if isinstance(v, np.ndarray) and v.dtype == bool and v.ndim == 1}
-    rows = 1 + has_truth + (compare is not None) + (bias is not None) + bool(flags)
+    std = est.signals.get("att_std_rad")  # offline estimators: per body axis, 1 sigma
+    rows = (1 + has_truth + (compare is not None) + (bias is not None) + bool(flags)
+            + (std is not None))
     fig, axes = plt.subplots(rows, 1, figsize=(10, 2.6 * rows), sharex=True, squeeze=False)
     axes = axes[:, 0]
     t = rec.t - rec.t[0]
@@ -71,6 +73,26 @@ def plot_estimate(rec, est, path, compare=None) -> Path:
             ax.plot(t, err[:, i], lw=0.8, label=f"{lab} error")
         ax.set_ylabel("error (deg)")
         ax.legend(fontsize=7, ncol=3)
+        k += 1
+    if std is not None:
+        # the estimate's own uncertainty: ±2 sigma per body axis, and where the truth is
+        # known the error in the same axes (rotation vector of conj(q_true) ⊗ q_est)
+        ax = axes[k]
+        sd = np.degrees(np.asarray(std))
+        colors = ("C0", "C1", "C2")
+        if has_truth:
+            ok = np.all(np.isfinite(rec.q_true), axis=1)
+            d = quat_mul(quat_conj(rec.q_true[ok]), est.q[ok])
+            d *= np.where(d[:, :1] < 0.0, -1.0, 1.0)
+            e_body = np.full((len(rec), 3), np.nan)
+            e_body[ok] = np.degrees(2.0 * d[:, 1:])
+        for i, lab in enumerate(("x", "y", "z")):
+            ax.fill_between(t, -2 * sd[:, i], 2 * sd[:, i], color=colors[i], alpha=0.15,
+                            lw=0, label=f"±2σ {lab}")
+            if has_truth:
+                ax.plot(t, e_body[:, i], color=colors[i], lw=0.6, label=f"error {lab}")
+        ax.set_ylabel("body-axis error,\n±2σ band (deg)")
+        ax.legend(fontsize=7, ncol=6)
         k += 1
     if bias is not None:
         ax = axes[k]
