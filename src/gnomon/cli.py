@@ -605,6 +605,23 @@ def _add_log_options(s) -> None:
     g.add_argument("--instance", type=int, help="IMU instance (ULog, DataFlash; default 0)")
 
 
+def _add_csv_options(s) -> None:
+    g = s.add_argument_group("CSV options")
+    g.add_argument("--columns", help="column map NAME=COLUMN,... (names: t, gyr_x, ..., mag_z)")
+    g.add_argument("--gyro-unit", help="rad/s (default) or deg/s")
+    g.add_argument("--accel-unit", help="m/s^2 (default) or g")
+    g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
+    g.add_argument("--time-unit", help="s (default), ms, us or ns")
+
+
+def _add_phone_mag_option(s) -> None:
+    s.add_argument("--phone-mag", choices=["calibrated", "raw"],
+                   help="phone exports (tyrex, Sensor Logger): the OS-calibrated magnetometer "
+                        "(the reader's default) or the raw one (the default of calibrate mag "
+                        "and of estimate --mag-calibration: a calibration corrects the raw "
+                        "one)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gnomon",
@@ -643,16 +660,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--mag-calibration", metavar="CAL.json|self",
                    help="correct the magnetometer first: a calibration from `gnomon "
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
-    s.add_argument("--phone-mag", choices=["calibrated", "raw"],
-                   help="phone exports (tyrex, Sensor Logger): the OS-calibrated "
-                        "magnetometer (the reader's default) or the raw one")
+    _add_phone_mag_option(s)
     s.add_argument("--json", action="store_true", help="print a JSON summary")
-    g = s.add_argument_group("CSV options")
-    g.add_argument("--columns", help="column map NAME=COLUMN,... (names: t, gyr_x, ..., mag_z)")
-    g.add_argument("--gyro-unit", help="rad/s (default) or deg/s")
-    g.add_argument("--accel-unit", help="m/s^2 (default) or g")
-    g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
-    g.add_argument("--time-unit", help="s (default), ms, us or ns")
+    _add_csv_options(s)
     s.set_defaults(func=cmd_estimate)
 
     s = sub.add_parser("calibrate", help="sensor calibration from a recording or log "
@@ -679,17 +689,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--date", help="when (YYYY-MM-DD), with --location")
     c.add_argument("--model", default="auto", choices=["auto", "full", "scale", "offset"],
                    help="auto (default): the richest model the directions visited determine")
-    c.add_argument("--phone-mag", choices=["calibrated", "raw"],
-                   help="phone exports (tyrex, Sensor Logger): the raw magnetometer (what a "
-                        "calibration needs) or the OS-calibrated one (the reader's default)")
+    _add_phone_mag_option(c)
     c.add_argument("--no-gyro", action="store_true",
                    help="do not use the gyro (start, gate and fallback for the offset)")
-    g = c.add_argument_group("CSV options")
-    g.add_argument("--columns", help="column map NAME=COLUMN,...")
-    g.add_argument("--gyro-unit", help="rad/s (default) or deg/s")
-    g.add_argument("--accel-unit", help="m/s^2 (default) or g")
-    g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
-    g.add_argument("--time-unit", help="s (default), ms, us or ns")
+    _add_csv_options(c)
     c.set_defaults(func=cmd_calibrate_mag)
 
     s = sub.add_parser("inspect", help="what a log holds: sensors, rates, gaps, units, the "
