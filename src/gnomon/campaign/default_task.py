@@ -67,7 +67,8 @@ def _filters_for(rec, filters):
 
     if filters is not None:
         return list(filters)
-    return [name for name in registry.names()
+    # causal filters by default (an offline one, --filter NAME-offline, sees the whole run)
+    return [name for name in registry.names(offline=False)
             if all((rec.extra.get(k[6:]) is not None) if k.startswith("extra.")
                    else getattr(rec, k, None) is not None for k in registry.get(name).needs)]
 
