@@ -54,3 +54,15 @@ def full_broad():
         pytest.skip("full BROAD data not found: set GNOMON_BROAD_DIR (default "
                     "../shared/data/broad beside the repository)")
     return d
+
+
+@pytest.fixture(scope="session")
+def full_tyrex():
+    """The tyrex smartphone data set's root, or a clear skip (setting: GNOMON_TYREX_DIR)."""
+    from gnomon.datasets import tyrex_dir
+
+    d = tyrex_dir()
+    if d is None:
+        pytest.skip("tyrex data set not found: set GNOMON_TYREX_DIR (default "
+                    "../shared/data/tyrex beside the repository)")
+    return d

@@ -46,16 +46,6 @@ IOS = DATA / "ios" / "Guillaume_iPhone5_NoDist_Texting_excerpt"
 ANCHOR_ROWS = ["vqf", "vqf-offline", "phone", "ahrs-madgwick", "imufusion"]
 
 
-def _full():
-    from gnomon.datasets import tyrex_dir
-
-    d = tyrex_dir()
-    if d is None:
-        pytest.skip("tyrex data set not found: set GNOMON_TYREX_DIR (default "
-                    "../shared/data/tyrex beside the repository)")
-    return d
-
-
 # ------------------------------------------------------------------ alignment (synthetic)
 def _simulated(lag_s: float, rotvec_deg, seed: int = 1):
     """A simulated phone (200 Hz) and its motion capture: a 60 Hz reference that sees the
@@ -359,9 +349,8 @@ def test_cli_benchmark_any_folder(capsys):
 
 
 # ------------------------------------------------------------------ the full data set
-def test_full_data_set_trials_and_references():
-    d = _full()
-    trials, calib = tyrex_trials(d)
+def test_full_data_set_trials_and_references(full_tyrex):
+    trials, calib = tyrex_trials(full_tyrex)
     assert len(trials) == 28 and len(calib) == 6
     assert {trial_info(p.name)["phone"] for p in trials} == {"Nexus5", "iPhone5"}
     for p in (trials[0], trials[-1]):
@@ -372,12 +361,12 @@ def test_full_data_set_trials_and_references():
 
 @pytest.mark.parametrize("trial", ["android/Guillaume_Nexus5_NoDist_Phoning",
                                    "ios/Guillaume_iPhone5_NoDist_Phoning"])
-def test_full_trial_alignment_and_gravity(trial):
+def test_full_trial_alignment_and_gravity(trial, full_tyrex):
     """On a whole trial the fit is well determined: the residual lag of the data set's
     10 ms alignment, a phone 1-3 deg off its marker body, the rate residual cut by more
     than 3; at rest (tight thresholds) the specific force through the aligned truth is
     within 2 deg of up (median) — the phone held vertically at the ear."""
-    rec = read(_full() / "datasets" / trial)
+    rec = read(full_tyrex / "datasets" / trial)
     q, info = align_truth(rec)
     assert -0.040 < info["lag_s"] < -0.005 and info["lag_correlation"] > 0.95
     assert 0.8 < info["misalignment_deg"] < 3.0

@@ -417,22 +417,11 @@ def test_benchmark_calibration_options_are_checked():
 
 
 # ---------------------------------------------------------------------- tyrex (data set)
-@pytest.fixture(scope="module")
-def tyrex():
-    from gnomon.datasets import tyrex_dir
-
-    d = tyrex_dir()
-    if d is None:
-        pytest.skip("tyrex data set not found: set GNOMON_TYREX_DIR (default "
-                    "../shared/data/tyrex beside the repository)")
-    return d
-
-
-def test_tyrex_calibration_recording_matches_android_own_estimate(tyrex):
+def test_tyrex_calibration_recording_matches_android_own_estimate(full_tyrex):
     from gnomon.io.phone import read_tyrex
     from gnomon.io.tyrex import datasets_dir
 
-    folder = datasets_dir(tyrex) / "android" / "calib_mag_Nexus5_d2"
+    folder = datasets_dir(full_tyrex) / "android" / "calib_mag_Nexus5_d2"
     cal = calibrate_mag(read_tyrex(folder, mag="raw", reference=False), field_uT=47.07)
     assert cal.ok and cal.model == "full" and cal.coverage > 0.9
     assert cal.residual_uT < 1.0  # the Nexus 5's noise is ~0.65 uT per axis
@@ -440,12 +429,12 @@ def test_tyrex_calibration_recording_matches_android_own_estimate(tyrex):
     np.testing.assert_allclose(cal.offset_uT, android, atol=2.0)
 
 
-def test_tyrex_every_trial_has_its_calibration_recording(tyrex):
+def test_tyrex_every_trial_has_its_calibration_recording(full_tyrex):
     from gnomon.benchmark import TYREX_MAG_CALIBRATION
     from gnomon.io.tyrex import datasets_dir, tyrex_trials
 
-    trials, _ = tyrex_trials(tyrex)
+    trials, _ = tyrex_trials(full_tyrex)
     assert trials
     for p in trials:
-        assert (datasets_dir(tyrex) / TYREX_MAG_CALIBRATION[p.name] / "magnetometer.txt"
+        assert (datasets_dir(full_tyrex) / TYREX_MAG_CALIBRATION[p.name] / "magnetometer.txt"
                 ).is_file()

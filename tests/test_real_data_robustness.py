@@ -9,7 +9,8 @@ Two failures measured with default parameters against the motion capture:
   accelerometer low-pass and was measured, and corrected, again and again).
 
 The simulated cases run everywhere; the real trials run when the data set is present
-(``gnomon.datasets.tyrex_dir``) and are skipped with the reason otherwise.
+(``gnomon.datasets.tyrex_dir``, the ``full_tyrex`` fixture) and are skipped with the
+reason otherwise.
 """
 
 import dataclasses
@@ -18,7 +19,6 @@ import json
 import numpy as np
 import pytest
 
-from gnomon.datasets import tyrex_dir
 from gnomon.estimators import registry
 from gnomon.metrics import compare, score
 from gnomon.rotation import dcm_from_quat
@@ -136,10 +136,10 @@ def test_bias_at_its_bound_is_a_signal_and_a_warning(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- the real trials
-def _trial(platform: str, name: str):
-    root = tyrex_dir()
-    folder = None if root is None else root / "datasets" / platform / name
-    if folder is None or not folder.is_dir():
+def _trial(root, platform: str, name: str):
+    """A whole trial of the data set at ``root`` (the ``full_tyrex`` fixture)."""
+    folder = root / "datasets" / platform / name
+    if not folder.is_dir():
         pytest.skip(f"tyrex trial {platform}/{name} not found (set GNOMON_TYREX_DIR)")
     import gnomon
 
@@ -153,10 +153,10 @@ def _trial(platform: str, name: str):
     ("Guillaume_Nexus5_NoDist_Swinging", 15.0), ("Guillaume_Nexus5_Dist_Swinging", 25.0),
     ("Guillaume_Nexus5_Dist_FrontPocket", 25.0), ("Guillaume_Nexus5_NoDist_RunningHand", 45.0)])
 @pytest.mark.parametrize("name", ["eskf-r3", "eskf-r6"])
-def test_eskf_on_android_walking_trials(name, trial, max_err_deg):
+def test_eskf_on_android_walking_trials(name, trial, max_err_deg, full_tyrex):
     """Nexus 5 (calibrated gyro, bias below 1 deg/s): before, eskf-r3 ended 86-103 deg
     from the motion capture on three of these with its bias at 13-29 deg/s."""
-    rec = _trial("android", trial)
+    rec = _trial(full_tyrex, "android", trial)
     est = registry.create(name).run(rec)
     b = np.degrees(est.signals["bias_rad_s"])
     late = rec.t - rec.t[0] > 30.0
@@ -167,10 +167,10 @@ def test_eskf_on_android_walking_trials(name, trial, max_err_deg):
 
 @pytest.mark.parametrize("trial", ["Guillaume_iPhone5_NoDist_Texting",
                                    "Guillaume_iPhone5_Dist_Phoning"])
-def test_robust_ahrs_on_the_biased_iphone(trial):
+def test_robust_ahrs_on_the_biased_iphone(trial, full_tyrex):
     """iPhone 5 raw gyro: about 5.5-6 deg/s on x. Before, the estimate sat at its 2 deg/s
     bound (Dist_Phoning: 68.7 deg from the motion capture)."""
-    rec = _trial("ios", trial)
+    rec = _trial(full_tyrex, "ios", trial)
     est = registry.create("robust-ahrs").run(rec)
     b = np.degrees(est.signals["bias_rad_s"])
     assert 3.5 < b[-1, 0] < 7.0
