@@ -29,6 +29,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -253,6 +255,16 @@ def offline_section(broad: dict, tyrex: dict | None) -> str:
     for m in ms:
         cells = [f"{v['mean'][m]['total_deg']:.3f}" if m in v["mean"] else "–"
                  for v in runs.values()]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    lines += ["", "Honesty of the per-axis uncertainty `att_std_rad` on the same trials: NEES "
+              "(normalised estimation error squared, 3 dof; 3 for an honest band), mean and "
+              "median over the trials of each trial's mean:", "",
+              "| method | " + " | ".join(runs) + " |", "| --- |" + " ---: |" * len(runs)]
+    for m in ("eskf-offline", "robust-ahrs-offline"):
+        cells = []
+        for v in runs.values():
+            nees = [r["nees"] for r in v["trials"] if r["method"] == m and "nees" in r]
+            cells.append(f"{np.mean(nees):.1f} / {np.median(nees):.1f}" if nees else "–")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

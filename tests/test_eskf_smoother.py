@@ -228,7 +228,8 @@ def mc_runs():
     out = []
     for seed in SEEDS:
         rec = simulate_ahrs(sim, np.random.default_rng(seed))
-        out.append((rec, EskfOffline(**_matched(sim)).smooth(rec, attitude_cov=True)))
+        out.append((rec, EskfOffline(**_matched(sim), std_consistency_window_s=0.0)
+                    .smooth(rec, attitude_cov=True)))
     return out
 
 
@@ -287,7 +288,8 @@ def test_std_within_the_causal_filters(mc_runs):
     from gnomon.kernels import eskf_smoother as sm
 
     rec, e = mc_runs[0]
-    f = EskfOffline(**_matched(AhrsSimParams(duration_s=DURATION_S)))
+    f = EskfOffline(**_matched(AhrsSimParams(duration_s=DURATION_S)),
+                    std_consistency_window_s=0.0)
     inputs = f._kernel_inputs(rec)
     out = sm.new_passes(len(rec))
     sm.forward_pass(inputs, f.state, kern.coefficients(f.params), out)
@@ -297,10 +299,50 @@ def test_std_within_the_causal_filters(mc_runs):
     assert np.median(e.signals["att_std_rad"] / fwd_std) < 0.9
 
 
+def _nees(rec, e) -> float:
+    eps = _rotation_error(rec.q_true, e.q)
+    return float(((eps / e.signals["att_std_rad"]) ** 2).sum(axis=1).mean())
+
+
+def test_consistency_widening_only_widens_and_leaves_a_true_model_about_alone(mc_runs):
+    """Default ``std_consistency_window_s`` (30 s) on the matched simulations: the band is
+    the model's times ``std_scale`` >= 1 (exactly), and stays near honest: mean NEES in
+    [2.0, 3.57] (the model's own: in its band [2.47, 3.57]; measured 2.8 → 2.3)."""
+    nees = []
+    for rec, e_model in mc_runs:
+        e = EskfOffline(**_matched(AhrsSimParams(duration_s=DURATION_S))).run(rec)
+        scale = e.signals["std_scale"]
+        assert np.all(scale >= 1.0)
+        np.testing.assert_allclose(e.signals["att_std_rad"],
+                                   e_model.signals["att_std_rad"] * scale[:, None], rtol=1e-12)
+        np.testing.assert_array_equal(e.q, e_model.q)
+        nees.append(_nees(rec, e))
+    assert 2.0 < np.mean(nees) < 3.57, np.round(nees, 2)
+
+
+def test_consistency_widening_catches_an_overconfident_model():
+    """Filter noise parameters 5x below the simulated sensors' (and unmodelled linear
+    acceleration): the model's band is far too narrow (NEES >> 3); the widened one is
+    within a factor 2 of honest in standard deviation (NEES < 12) and at least 3x
+    closer to 3 than the model's."""
+    sim = AhrsSimParams(duration_s=DURATION_S, linear_accel_rms=0.3)
+    kw = _matched(sim)
+    kw.update(gyro_noise=kw["gyro_noise"] / 5, accel_noise=kw["accel_noise"] / 5,
+              mag_noise=kw["mag_noise"] / 5)
+    model, widened = [], []
+    for seed in range(3):
+        rec = simulate_ahrs(sim, np.random.default_rng(100 + seed))
+        model.append(_nees(rec, EskfOffline(**kw, std_consistency_window_s=0.0).run(rec)))
+        widened.append(_nees(rec, EskfOffline(**kw).run(rec)))
+    assert np.mean(model) > 12.0, model
+    assert np.mean(widened) < 12.0 and np.mean(widened) < np.mean(model) / 3, (model,
+                                                                              widened)
+
+
 # ---------------------------------------------------------------- interface and bad input
 def test_interface():
     assert EskfOffline.name == "eskf-offline" and EskfOffline.offline is True
-    assert EskfOffline.Params is EskfR3.Params
+    assert issubclass(EskfOffline.Params, EskfR3.Params)  # and the band's widening
     assert EskfOffline().params.measurement == "r3"
     rec = _sim(2, duration_s=2.0)
     e = EskfOffline().run(rec)

@@ -55,6 +55,10 @@ is fitted to any estimate; no heading offset is removed.
 acausal batch variant), ``phone`` (tyrex) / ``onboard`` (generic): the device's own
 estimate ``q_onboard``, scored over the rows where it exists (``samples`` says how many).
 A method that fails on a trial is recorded in ``errors`` and the run goes on.
+
+**Uncertainty** (estimators that carry ``att_std_rad``, the offline ones): their rows and
+means also have ``nees``, the mean normalised estimation error squared over the scored
+samples (3 for an honest per-axis standard deviation; ``_nees``).
 """
 
 from __future__ import annotations
@@ -69,8 +73,10 @@ import numpy as np
 from gnomon import anchors as anchors_mod
 from gnomon.errors import InputError
 from gnomon.estimators import registry
+from gnomon.estimators.base import Estimate
 from gnomon.metrics import ALIGN_OPTIONS, align_truth, broad_errors_rad, rms_deg, score_broad
 from gnomon.recording import Recording
+from gnomon.rotation import quat_conj, quat_mul, rotvec_from_quat
 
 __all__ = ["run_broad", "run_tyrex", "run_benchmark", "default_filters", "parse_align",
            "TYREX_ANCHORS", "BENCHMARKS", "plot_benchmark", "group_kinds",
@@ -149,7 +155,7 @@ def _methods(filters: Sequence[str], anchors: Sequence[str] | None) -> list[_Met
         registry.get(name)  # unknown names fail before any trial runs
 
         def run_filter(rec, name=name):
-            return registry.create(name).run(rec).q
+            return registry.create(name).run(rec)
 
         methods.append((name, run_filter, _always))
     if anchors is None:  # the causal libraries and VQF's offline form, where installed
@@ -165,6 +171,20 @@ def _methods(filters: Sequence[str], anchors: Sequence[str] | None) -> list[_Met
         applies = _has_onboard if target == "onboard" else _always
         methods.append((name, lambda rec, t=target: anchors_mod.run_anchor(t, rec), applies))
     return methods
+
+
+def _nees(rec: Recording, q_est, std) -> float:
+    """Mean normalised estimation error squared of an estimate that carries its per-axis
+    1-sigma ``std`` (N, 3) rad (``att_std_rad``): ``Σ_i (ε_i / σ_i)²`` averaged over the
+    scored samples, ``ε`` the rotation vector (body axes) of ``conj(q̂) ⊗ q_true``. An
+    honest uncertainty gives 3; larger means the band is too narrow for this data."""
+    q = np.asarray(q_est, dtype=float)
+    std = np.asarray(std, dtype=float)
+    m = rec.score_mask & np.all(np.isfinite(q), axis=1) & np.all(std > 0, axis=1)
+    if not m.any():
+        return float("nan")
+    eps = rotvec_from_quat(quat_mul(quat_conj(q[m]), rec.q_true[m]))
+    return float(np.mean(np.sum((eps / std[m]) ** 2, axis=1)))
 
 
 def _score(rec: Recording, q_est) -> dict:
@@ -225,10 +245,13 @@ def _run(trials: Iterable[tuple[str, Callable[[], Recording]]], methods: list[_M
                     fn(rec.slice(0, min(len(rec), 200)))
                     warmed.add(method)
                 t0 = time.perf_counter()
-                q = fn(rec)
+                out = fn(rec)
                 timing.setdefault(method, []).append((len(rec), time.perf_counter() - t0))
-                rows.append({"trial": name, "method": method, **scorer(rec, q), **fit,
-                             **extra})
+                q = out.q if isinstance(out, Estimate) else out
+                row = {"trial": name, "method": method, **scorer(rec, q), **fit, **extra}
+                if isinstance(out, Estimate) and "att_std_rad" in out.signals:
+                    row["nees"] = _nees(rec, q, out.signals["att_std_rad"])
+                rows.append(row)
             except Exception as exc:  # one failure must not lose the other trials
                 errors.append({"trial": name, "method": method,
                                "error": f"{type(exc).__name__}: {exc}"})
@@ -245,8 +268,11 @@ def _speed(timing: dict) -> dict:
 
 
 def _mean_of(rows) -> dict:
-    return {**{f"{k}_deg": float(np.mean([r[f"{k}_deg"] for r in rows])) for k in _KEYS},
-            "trials": len(rows)}
+    out = {**{f"{k}_deg": float(np.mean([r[f"{k}_deg"] for r in rows])) for k in _KEYS},
+           "trials": len(rows)}
+    if all("nees" in r for r in rows):  # estimates with an uncertainty: its honesty
+        out["nees"] = float(np.nanmean([r["nees"] for r in rows]))
+    return out
 
 
 def _means(rows, methods) -> dict:

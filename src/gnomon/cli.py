@@ -170,7 +170,7 @@ def cmd_convert(args) -> int:
 
 #: ``gnomon estimate --offline`` without ``--filter``: the best offline estimator on the
 #: benchmarks (BROAD and the tyrex phones together, relative to VQF offline:
-#: docs/benchmarks.md), and the one whose uncertainty is checked (NEES)
+#: docs/benchmarks.md), its uncertainty a model's covariance (NEES-checked on simulations)
 OFFLINE_DEFAULT = "eskf-offline"
 
 

@@ -56,7 +56,7 @@ from gnomon.kernels.linalg import clip
 from gnomon.kernels.quat import exp_mul, mul, normalised
 
 __all__ = ["N_UPPER", "Passes", "new_passes", "forward_pass", "backward_pass", "smooth",
-           "rts_core", "unpack_upper", "pack_upper"]
+           "rts_core", "unpack_upper", "pack_upper", "consistency_terms"]
 
 #: unique entries of a symmetric 6x6 matrix
 N_UPPER = 21
@@ -310,3 +310,21 @@ def smooth(inputs, state, c, out):
     """``forward_pass`` then ``backward_pass``: the smoothed estimate in ``out``."""
     forward_pass(inputs, state, c, out)
     backward_pass(inputs, c, out)
+
+
+@njit(**_JIT)
+def consistency_terms(out, num, den):
+    """Per sample, the two sides of the smoother's consistency check
+    (``gnomon.estimators.eskf_offline``): ``num`` (N,) the squared rotation angle between
+    the causal ``q_fwd`` and the smoothed ``q`` (rad²) and ``den`` (N,) its expectation
+    under the model, ``Σ_i max(4 P⁺_ii - att_std_i², 0)`` (rad², the attitude block)."""
+    for k in range(out.q.shape[0]):
+        aw, ax, ay, az = out.q[k, 0], out.q[k, 1], out.q[k, 2], out.q[k, 3]
+        bw, bx, by, bz = out.q_fwd[k, 0], out.q_fwd[k, 1], out.q_fwd[k, 2], out.q_fwd[k, 3]
+        ew, ex, ey, ez = mul(aw, -ax, -ay, -az, bw, bx, by, bz)
+        angle = 2.0 * math.atan2(math.sqrt(ex * ex + ey * ey + ez * ez), abs(ew))
+        num[k] = angle * angle
+        s = 0.0
+        for i, m in enumerate((0, 6, 11)):  # P00, P11, P22 of the upper triangle
+            s += max(4.0 * out.P[k, m] - out.att_std[k, i] ** 2, 0.0)
+        den[k] = s
