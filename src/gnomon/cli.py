@@ -168,25 +168,18 @@ def cmd_convert(args) -> int:
     return 0
 
 
-#: ``gnomon estimate --offline`` without ``--filter``: the best offline estimator on the
-#: benchmarks (BROAD and the tyrex phones together, relative to VQF offline:
-#: docs/benchmarks.md), its uncertainty a model's covariance (NEES-checked on simulations)
-OFFLINE_DEFAULT = "eskf-offline"
-
-
-def _estimate_filter(name: str | None, offline: bool) -> str:
-    """The filter ``gnomon estimate`` runs: ``name`` (default robust-ahrs) or, with
-    ``offline``, its ``-offline`` form (default ``OFFLINE_DEFAULT``)."""
+def _estimate_filter(name: str | None, offline: bool, rec) -> tuple[str, str | None]:
+    """The filter ``gnomon estimate`` runs, and why when it chose it: ``name``, or with
+    ``offline`` its ``-offline`` form; without a name the first of the registry's
+    default order that runs on ``rec`` (``registry.default_for``)."""
     from gnomon.estimators import registry
 
-    if not offline:
-        return name or "robust-ahrs"
     if name is None:
-        return OFFLINE_DEFAULT
-    if getattr(registry.get(name), "offline", False):
-        return name
+        return registry.default_for(rec, offline)
+    if not offline or getattr(registry.get(name), "offline", False):
+        return name, None
     if f"{name}-offline" in registry.names():
-        return f"{name}-offline"
+        return f"{name}-offline", None
     raise InputError(f"{name!r} has no offline form; offline filters: "
                      f"{', '.join(registry.names(offline=True))}", field="--filter")
 
@@ -202,9 +195,10 @@ def cmd_estimate(args) -> int:
     cal_summary = None
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
-    args.filter = _estimate_filter(args.filter, args.offline)
+    args.filter, chosen = _estimate_filter(args.filter, args.offline, rec)
     est = registry.create(args.filter, _params(args.param)).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
+               **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,
                "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
                                                         {}))}
@@ -232,6 +226,8 @@ def cmd_estimate(args) -> int:
         print_json(summary)
         return 0
     print(f"{args.filter} on {args.input}: {len(rec)} samples")
+    if chosen:
+        print(f"  (default filter: {chosen}; --filter NAME to choose)")
     if cal_summary is not None:
         print(f"  magnetometer calibration ({cal_summary['from']}): {cal_summary['model']}, "
               f"offset {[round(v, 2) for v in cal_summary['offset_uT']]} uT, coverage "
@@ -640,9 +636,13 @@ def build_parser() -> argparse.ArgumentParser:
                                         "text, MATLAB .mat)")
     s.add_argument("input", help="recording file or folder (format from the content; "
                                  "see --format)")
+    from gnomon.estimators.registry import DEFAULT_ORDER, OFFLINE_DEFAULT_ORDER
+
     s.add_argument("--filter", default=None,
-                   help="filter name (see `gnomon filters`; default robust-ahrs, for IMU data; "
-                        f"with --offline {OFFLINE_DEFAULT})")
+                   help="filter name (see `gnomon filters`; default: from the recording's "
+                        "sensors, the first that runs of "
+                        f"{', '.join(DEFAULT_ORDER)}; with --offline "
+                        f"{', '.join(OFFLINE_DEFAULT_ORDER)})")
     s.add_argument("--offline", action="store_true",
                    help="the most accurate attitude the whole log allows: an offline filter "
                         "(forward and backward passes; --filter NAME picks NAME-offline), with "

@@ -13,7 +13,8 @@ import importlib
 
 from gnomon.errors import InputError
 
-__all__ = ["names", "get", "create", "describe", "KINDS"]
+__all__ = ["names", "get", "create", "describe", "default_for", "KINDS", "DEFAULT_ORDER",
+           "OFFLINE_DEFAULT_ORDER"]
 
 KINDS = ("imu", "spacecraft")
 
@@ -31,6 +32,20 @@ _ENTRIES: dict[str, str] = {
     "eskf-offline": "gnomon.estimators.eskf_offline:EskfOffline",
     "robust-ahrs-offline": "gnomon.estimators.robust_ahrs_offline:RobustAHRSOffline",
 }
+
+
+#: ``default_for``: the filter run on a recording when none is named, the first of these
+#: whose inputs the recording has. A spacecraft recording (a field model in the orbit
+#: frame, ``extra.b_o_nT``): the MEKF with sun sensors, else the magnetometer-gyro MEKF,
+#: else the gyroless EKF with the dynamics; a 9-axis IMU: robust-ahrs (the benchmarks'
+#: best causal filter, docs/benchmarks.md); gyro and accelerometer only: the tilt filter
+#: (no heading: the heading is the gyro's integral from zero).
+DEFAULT_ORDER = ("mekf-spacecraft", "mekf-delayed", "ekf-spacecraft", "robust-ahrs",
+                 "tilt-cf")
+#: the same with ``offline``: eskf-offline, the best offline estimator on BROAD and the
+#: phones together relative to VQF offline (docs/estimators/offline.md), its uncertainty
+#: a model's covariance; then robust-ahrs-offline
+OFFLINE_DEFAULT_ORDER = ("eskf-offline", "robust-ahrs-offline")
 
 
 def names(kind: str | None = None, offline: bool | None = None) -> list[str]:
@@ -72,3 +87,34 @@ def describe(kind: str | None = None) -> list[dict]:
                      "kind": cls.kind, "needs": list(cls.needs),
                      "params": cls.Params.describe()})
     return rows
+
+
+def _inputs_of(rec) -> list[str]:
+    """What ``rec`` holds, in the words of the filters' ``needs``."""
+    have = [n for n in ("gyro", "accel", "mag", "sun") if getattr(rec, n, None) is not None]
+    return have + [f"extra.{k}" for k in ("b_o_nT", "s_o") if rec.extra.get(k) is not None]
+
+
+def default_for(rec, offline: bool = False) -> tuple[str, str]:
+    """The filter to run on ``rec`` when none is named, and why: ``(name, reason)``. The
+    first of ``DEFAULT_ORDER`` (``OFFLINE_DEFAULT_ORDER`` with ``offline``) whose
+    ``check_inputs`` accepts ``rec`` (its sensors, rates and reference frame); raises
+    ``InputError`` naming what the recording holds when none does."""
+    order = OFFLINE_DEFAULT_ORDER if offline else DEFAULT_ORDER
+    held = ", ".join(_inputs_of(rec)) or "no sensor"
+    for name in order:
+        try:
+            create(name).check_inputs(rec)
+        except InputError:
+            continue
+        skipped = order[:order.index(name)]
+        why = f"the recording holds {held}"
+        if skipped:
+            why += f"; not enough for {', '.join(skipped)}"
+        return name, why
+    kind = "offline filter" if offline else "filter"
+    needs = "; ".join(f"{n} needs {', '.join(get(n).needs)}" for n in order)
+    raise InputError(f"no default {kind} runs on this recording (it holds {held}): "
+                     f"{needs}" + ("; without --offline a causal filter may run"
+                                   if offline else ""),
+                     field="--filter", file=getattr(rec, "source", None) or None)

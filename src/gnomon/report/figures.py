@@ -16,6 +16,17 @@ def _plt():
     return plt
 
 
+def _broken_at_wraps(deg: np.ndarray) -> np.ndarray:
+    """Euler angles (N, 3) deg, in their principal ranges, with NaN where an angle jumps by
+    more than 180 deg to the next sample (a wrap at ±180): drawn as lines, no vertical
+    stroke across the plot. (Unwrapping instead drifts by 360 deg at each pass near
+    pitch ±90 deg, where roll and yaw jump together, and parts from the truth.)"""
+    out = np.array(deg, dtype=float)
+    jump = np.abs(np.diff(out, axis=0)) > 180.0
+    out[1:][jump] = np.nan
+    return out
+
+
 def plot_estimate(rec, est, path, compare=None) -> Path:
     """Attitude (Euler angles), errors vs truth (when present), bias estimate and flags.
 
@@ -37,20 +48,22 @@ def plot_estimate(rec, est, path, compare=None) -> Path:
     axes = axes[:, 0]
     t = rec.t - rec.t[0]
     ax = axes[0]
-    rpy = np.degrees(np.unwrap(euler_from_quat(est.q), axis=0))
+    rpy = _broken_at_wraps(np.degrees(euler_from_quat(est.q)))
     for i, lab in enumerate(("roll", "pitch", "yaw")):
         ax.plot(t, rpy[:, i], lw=0.8, label=f"{lab} ({est.estimator})")
     if has_truth:
         ok = np.all(np.isfinite(rec.q_true), axis=1)
         rpy_t = np.full((len(rec), 3), np.nan)
         rpy_t[ok] = np.degrees(euler_from_quat(rec.q_true[ok]))
+        rpy_t = _broken_at_wraps(rpy_t)
         for i in range(3):
             ax.plot(t, rpy_t[:, i], "k--", lw=0.6, label="truth" if i == 0 else None)
     if compare is not None:
         label, q_ref = compare
         ok = np.all(np.isfinite(q_ref), axis=1)
         rpy_c = np.full((len(rec), 3), np.nan)
-        rpy_c[ok] = np.degrees(np.unwrap(euler_from_quat(q_ref[ok]), axis=0))
+        rpy_c[ok] = np.degrees(euler_from_quat(q_ref[ok]))
+        rpy_c = _broken_at_wraps(rpy_c)
         for i in range(3):
             ax.plot(t, rpy_c[:, i], ":", color="0.3", lw=0.9, label=label if i == 0 else None)
     ax.set_ylabel("Euler angle (deg)")
