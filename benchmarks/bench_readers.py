@@ -9,7 +9,7 @@ Logs (gyro+accelerometer at ``--rate`` Hz, magnetometer and the device's attitud
 quarter of it):
 
 * PX4 ULog, written with pyulog's own writer from the fixture
-  ``tests/data/logs/px4/sample_imu_113s_6s.ulg`` (its messages repeated with new time
+  ``src/gnomon/data/logs/px4/sample_imu_113s_6s.ulg`` (its messages repeated with new time
   stamps): ``sensor_combined`` (gyro, accelerometer, older firmware's magnetometer) and
   ``vehicle_attitude``;
 * ROS 1 bag, written with rosbags' writer: ``sensor_msgs/Imu`` and
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-FIXTURE = ROOT / "tests" / "data" / "logs" / "px4" / "sample_imu_113s_6s.ulg"
+FIXTURE = ROOT / "src" / "gnomon" / "data" / "logs" / "px4" / "sample_imu_113s_6s.ulg"
 
 
 def make_ulog(path: Path, seconds: float, rate_hz: float) -> Path:

@@ -285,10 +285,10 @@ def main() -> None:
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
     ap.add_argument("--quick", action="store_true", help="quick speed benchmark")
     args = ap.parse_args()
-    from gnomon.datasets import broad_dir
+    from gnomon.datasets import broad_dir, bundled
     from gnomon.speed import markdown_table
 
-    data = args.broad or broad_dir() or ROOT / "tests" / "data" / "broad"
+    data = args.broad or broad_dir() or bundled("broad")
     broad = gnomon_json("benchmark", "broad", "--data", str(data))
     from gnomon.datasets import tyrex_dir
 

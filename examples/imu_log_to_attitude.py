@@ -7,9 +7,10 @@ import sys
 from pathlib import Path
 
 import gnomon
+from gnomon.datasets import bundled
 
-HERE = Path(__file__).resolve().parent
-trial = HERE.parent / "tests" / "data" / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat"
+# a BROAD excerpt shipped with gnomon (CC BY 4.0, see gnomon/data/README.md)
+trial = bundled("broad", "01_undisturbed_slow_rotation_A_excerpt.mat")
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(".")
 out.mkdir(parents=True, exist_ok=True)
 

@@ -52,7 +52,8 @@ def full_broad():
     d = broad_dir()
     if d is None:
         pytest.skip("full BROAD data not found: set GNOMON_BROAD_DIR (default "
-                    "../shared/data/broad beside the repository)")
+                    "../shared/data/broad beside the repository), or run "
+                    "`gnomon datasets fetch broad`")
     return d
 
 
@@ -64,5 +65,6 @@ def full_tyrex():
     d = tyrex_dir()
     if d is None:
         pytest.skip("tyrex data set not found: set GNOMON_TYREX_DIR (default "
-                    "../shared/data/tyrex beside the repository)")
+                    "../shared/data/tyrex beside the repository), or run "
+                    "`gnomon datasets fetch tyrex`")
     return d

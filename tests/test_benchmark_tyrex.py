@@ -9,7 +9,7 @@
 * the anchors fed multi-rate phone data without invented samples;
 * the command line's JSON contract (``gnomon benchmark tyrex``, ``gnomon benchmark DIR``).
 
-Real data: the excerpts in ``tests/data/logs/tyrex`` (README there: CeCILL 2.1). Tests of
+Real data: the excerpts shipped in ``gnomon/data/logs/tyrex`` (CeCILL 2.1). Tests of
 the full data set find it through ``gnomon.datasets.tyrex_dir`` (``$GNOMON_TYREX_DIR``,
 else ``../shared/data/tyrex`` beside the repository) and skip without it.
 """
@@ -25,6 +25,7 @@ import pytest
 import scipy.io
 
 from gnomon.cli import main
+from gnomon.datasets import bundled
 from gnomon.errors import InputError
 from gnomon.io import read
 from gnomon.io.qualisys import is_qtm_mat, read_qtm
@@ -40,7 +41,7 @@ from gnomon.metrics import align_truth, error_angle_rad, quat_at
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate, rotvec_from_quat
 
-DATA = Path(__file__).parent / "data" / "logs" / "tyrex"
+DATA = bundled("logs", "tyrex")
 ANDROID = DATA / "android" / "Guillaume_Nexus5_NoDist_Texting_excerpt"
 IOS = DATA / "ios" / "Guillaume_iPhone5_NoDist_Texting_excerpt"
 ANCHOR_ROWS = ["vqf", "vqf-offline", "phone", "ahrs-madgwick", "imufusion"]
@@ -321,7 +322,7 @@ def test_cli_tyrex_json_contract(capsys, tmp_path):
     assert len(raw["alignment"]) == 2  # the fit is still reported
 
 
-def test_cli_tyrex_text_and_bad_options(capsys):
+def test_cli_tyrex_text_and_bad_options(capsys, monkeypatch, tmp_path):
     assert main(["benchmark", "tyrex", "--data", DATA, "--filters", "mahony", "--anchors",
                  "phone"]) == 0
     text = capsys.readouterr().out
@@ -329,8 +330,10 @@ def test_cli_tyrex_text_and_bad_options(capsys):
     assert main(["benchmark", "tyrex", "--data", DATA, "--align", "heading"]) == 2
     assert "unknown alignment" in capsys.readouterr().err
     assert main(["benchmark", "broad", "--data", DATA, "--mag", "raw"]) == 2
+    monkeypatch.setenv("GNOMON_TYREX_DIR", str(tmp_path / "absent"))  # no data set anywhere
     assert main(["benchmark", "tyrex"]) == 2
-    assert "--data" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--data" in err and "gnomon datasets fetch tyrex" in err
 
 
 def test_cli_benchmark_any_folder(capsys):

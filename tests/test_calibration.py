@@ -26,6 +26,7 @@ from gnomon.calibration import (
     sphere_coverage,
 )
 from gnomon.cli import main
+from gnomon.datasets import bundled
 from gnomon.errors import InputError
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
@@ -372,10 +373,7 @@ def test_cli_reads_a_phones_raw_magnetometer_for_a_calibration(capsys):
     --mag-calibration`` read it unless told otherwise (the bundled Nexus 5 excerpt: its raw
     offset is about (61, -53, 409) uT, Android's own estimate; too short to calibrate, so
     the report is a refusal, with the gyro's offset)."""
-    from pathlib import Path
-
-    trial = (Path(__file__).parent / "data" / "logs" / "tyrex" / "android"
-             / "Guillaume_Nexus5_NoDist_Texting_excerpt")
+    trial = bundled("logs", "tyrex", "android", "Guillaume_Nexus5_NoDist_Texting_excerpt")
     offsets = {}
     for extra in ([], ["--phone-mag", "calibrated"]):
         assert main(["calibrate", "mag", str(trial), "--json", *extra]) == 1  # refused

@@ -3,14 +3,14 @@
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from gnomon.cli import main
+from gnomon.datasets import bundled
 
-DATA = Path(__file__).parent / "data"
+DATA = bundled()
 EXCERPTS = DATA / "broad"
 
 

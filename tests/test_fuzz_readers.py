@@ -11,11 +11,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from gnomon.datasets import bundled
 from gnomon.errors import InputError
 from gnomon.io import read
 from gnomon.recording import Recording
 
-DATA = Path(__file__).parent / "data"
+DATA = bundled()
 MAT = DATA / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat"
 H5 = DATA / "broad" / "32_disturbed_attached_magnet_1cm_excerpt.hdf5"
 FUZZ = settings(max_examples=120, deadline=None,

@@ -1,6 +1,6 @@
 """Readers and writers: gnomon HDF5 round trip, BROAD (.hdf5, .mat), CSV, auto-detection, bad input.
 
-Real data: the BROAD excerpts in tests/data (see tests/data/README.md; BROAD,
+Real data: the BROAD excerpts shipped in gnomon/data (README there; BROAD,
 Laidig et al. 2021, doi:10.3390/data6070072, CC BY 4.0). Tests against the full
 BROAD trials run when the data directory exists: ``$GNOMON_BROAD_DIR``, else
 ``../shared/data/broad`` relative to the repository root (or one level further
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import scipy.io
 
-from gnomon.datasets import broad_dir
+from gnomon.datasets import broad_dir, bundled
 from gnomon.errors import InputError
 from gnomon.io import (
     UnitWarning,
@@ -34,8 +34,7 @@ from gnomon.io import (
 )
 from gnomon.recording import Recording
 
-ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT / "tests" / "data"
+DATA = bundled()
 MAT = DATA / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat"
 H5 = DATA / "broad" / "32_disturbed_attached_magnet_1cm_excerpt.hdf5"
 CSV = DATA / "broad_01_excerpt.csv"

@@ -9,8 +9,7 @@ from pathlib import Path
 import numpy as np
 
 import gnomon
-
-ROOT = Path(__file__).resolve().parents[1]
+from gnomon.datasets import bundled
 
 
 def test_every_exported_name_resolves_to_its_module_attribute():
@@ -39,7 +38,7 @@ def test_import_gnomon_does_not_import_numba_or_the_filters():
 
 
 def test_readme_example_through_the_facade(tmp_path):
-    rec = gnomon.read(ROOT / "tests/data/broad/01_undisturbed_slow_rotation_A_excerpt.mat")
+    rec = gnomon.read(bundled("broad", "01_undisturbed_slow_rotation_A_excerpt.mat"))
     est = gnomon.make_filter("mahony", kp_acc_rad_s=0.6).run(rec)
     s = gnomon.score(rec.q_true, est.q, rec.score_mask)
     e = gnomon.error_angle_rad(rec.q_true, est.q)

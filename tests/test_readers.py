@@ -2,7 +2,7 @@
 phyphox, Xsens, multi-rate CSV, MATLAB v5/v7.3 — read into a valid Recording, frames and
 units checked against something independent of the conversion code.
 
-Real files: excerpts in tests/data/logs (README there: PX4 BSD-3, pymavlink LGPL-3, tyrex
+Real files: excerpts shipped in gnomon/data/logs (README there: PX4 BSD-3, pymavlink LGPL-3, tyrex
 CeCILL 2.1). The full sample logs and the tyrex data set are used when found through
 ``gnomon.datasets`` (``$GNOMON_LOGS_DIR``, ``$GNOMON_TYREX_DIR``; else ``../shared/data``);
 the tests say so when they skip. Generated files (logfiles.py) for the formats without a
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from gnomon import cli
-from gnomon.datasets import logs_dir, tyrex_dir
+from gnomon.datasets import bundled, logs_dir, tyrex_dir
 from gnomon.errors import InputError
 from gnomon.io import detect_format, inspect, read, read_csv, read_recording, write
 from gnomon.io._common import onboard_on
@@ -34,7 +34,7 @@ from gnomon.rotation import (
     rotvec_from_quat,
 )
 
-DATA = Path(__file__).parent / "data" / "logs"
+DATA = bundled("logs")
 PX4_SMALL = DATA / "px4" / "sample_log_small_imu.ulg"
 PX4_OLD = DATA / "px4" / "sample_imu_113s_6s.ulg"
 PX4_SITL = DATA / "px4" / "sitl_groundtruth_4s.ulg"
@@ -481,7 +481,7 @@ def test_single_rate_csv_unchanged_and_truth_on_gyro_rows(tmp_path):
 def test_mat_v5_and_v73(tmp_path):
     import scipy.io
 
-    broad = Path(__file__).parent / "data" / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat"
+    broad = bundled("broad", "01_undisturbed_slow_rotation_A_excerpt.mat")
     d = {k: v for k, v in scipy.io.loadmat(broad).items()
          if not k.startswith("__") and v.dtype.kind in "biuf"}
     v73 = L.write_mat73(tmp_path / "broad73.mat", d)

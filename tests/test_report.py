@@ -121,3 +121,62 @@ def test_reproduce_all_quick_report_opens_in_chromium(tmp_path):
                            env={**os.environ, "HOME": str(tmp_path)})
         console = [line for line in p.stderr.splitlines() if ":CONSOLE" in line]
         assert console == [], (page.name, console)
+
+
+def test_front_page_headlines_thumbnails_and_tables(tmp_path):
+    """The front page: targets met per paper with its first rows and thumbnails, the
+    benchmark and speed tables found beside the report; parameters without absolute
+    paths and with sensible digits."""
+    import gnomon
+
+    results = _fake_results(tmp_path)
+    image = os.path.join(os.path.dirname(gnomon.__file__), "report", "html.py")  # a real file
+    results["004"]["scenario"] = {"image": image, "T_s": 59.99999999999999, "topic": "/imu/data"}
+    (tmp_path / "benchmark-broad.json").write_text(json.dumps(
+        {"mean": {"vqf": {"total_deg": 2.6691, "heading_deg": 2.1, "inclination_deg": 0.75},
+                  "robust-ahrs": {"total_deg": 1.8721, "heading_deg": 1.5,
+                                  "inclination_deg": 0.742}},
+         "trials": [{"trial": "01"}, {"trial": "02"}]}))
+    (tmp_path / "bench.json").write_text(json.dumps(
+        {"samples": 1000000, "repeats": 5,
+         "results": {"mahony": {"samples_per_s": 2.5e7, "ratio_to_vqf_batch": 3.0}}}))
+    build_report(tmp_path, results)
+    index = (tmp_path / "index.html").read_text()
+    assert "targets met" in index and "class='thumb'" in index and "p004/drift.png" in index
+    assert "T = 100 s: peak acceleration error" in index          # a headline row
+    assert index.index("robust-ahrs") < index.index("vqf")          # best first
+    assert "1.872" in index and "25" in index                       # M samples/s
+    page = (tmp_path / "p004.html").read_text()
+    assert "gnomon/report/html.py" in page and image not in page
+    assert ">60<" in page and "59.99" not in page
+    assert "/imu/data" in page                                      # a topic is no path
+
+
+def test_the_ill_posed_targets_are_restated():
+    """Paper 000: the drift-step target at gains chosen for the step (0.213 vs 0.253 deg);
+    paper 001: the EKF/MEKF eclipse ratio with the exact field (the 10 % one reported)."""
+    r000 = {"tuned": {"drift_step": {"qcf_rms_deg": 0.30, "ecf_rms_deg": 0.25},
+                      "drift_aware": {"qcf": {"drift_rms_deg": 0.213},
+                                      "ecf": {"drift_rms_deg": 0.253}}}}
+    rows = {r["label"]: r for r in evaluate("000", r000)}
+    step = [r for label, r in rows.items() if label.startswith("QCF RMS after the drift step")]
+    assert len(step) == 1 and step[0]["met"] is True and step[0]["value"] == 0.213
+    whole = [r for label, r in rows.items() if "whole run" in label][0]
+    assert whole["met"] is None and whole["value"] == pytest.approx(1.2)
+    e = {"ekf": {"eclipse_max_deg": 9.2, "sunlit_rms_deg": 0.1},
+         "mekf": {"eclipse_max_deg": 1.0, "eclipse_max_worst_deg": 1.5},
+         "ekf_field10": {"eclipse_max_deg": 6.0}, "mekf_field10": {"eclipse_max_deg": 5.0}}
+    rows = {r["label"]: r for r in evaluate("001", {"eclipse": e})}
+    assert rows["EKF / MEKF eclipse peak, exact field model"]["met"] is True
+    assert rows["EKF / MEKF eclipse peak, exact field model"]["value"] == pytest.approx(9.2)
+    assert rows["EKF / MEKF eclipse peak, 10% field error"]["met"] is None
+
+
+def test_gnomon_report_rebuilds_a_reproduction(tmp_path, capsys):
+    from gnomon.cli import main
+
+    results = _fake_results(tmp_path)
+    (tmp_path / "p004" / "metrics.json").write_text(json.dumps(results["004"]))
+    assert main(["report", tmp_path]) == 0
+    assert "p004/drift.png" in (tmp_path / "p004.html").read_text()
+    assert "wrote" in capsys.readouterr().out

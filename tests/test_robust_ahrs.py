@@ -1,10 +1,10 @@
 """robust-ahrs: kernel vs readable update, each mechanism on synthetic data, BROAD regression."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gnomon.datasets import bundled
 from gnomon.estimators.robust_ahrs import RobustAHRS, RobustAHRSParams, butter2
 from gnomon.metrics import broad_errors_rad
 from gnomon.recording import Recording
@@ -12,7 +12,7 @@ from gnomon.rotation import quat_conj, quat_from_euler, quat_from_rotvec, quat_m
 
 G = 9.81
 FIELD = np.array([0.0, 20.0, -45.0])  # uT, ENU
-DATA = Path(__file__).parent / "data" / "broad"
+DATA = bundled("broad")
 
 
 def wobble(n=6000, fs=100.0, bias=(0.0, 0.0, 0.0), seed=0, acc_n=None, mag_n=None, amp=0.6):

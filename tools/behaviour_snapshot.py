@@ -5,7 +5,7 @@ A refactoring that must not change behaviour is checked with it:
     python tools/behaviour_snapshot.py save    SNAPSHOT_DIR   # before
     python tools/behaviour_snapshot.py compare SNAPSHOT_DIR   # after: exit 1 on a change
 
-Inputs: the BROAD excerpts in ``tests/data/broad``, the full BROAD trials in
+Inputs: the BROAD excerpts in ``gnomon/data/broad`` (package data), the full BROAD trials in
 ``../shared/data/broad`` where present, and short simulated runs of every scenario
 preset (seeded). Every registered filter runs on every input that holds the
 sensors it needs; its attitude ``q`` and all its numeric signals are stored. ``compare``
@@ -27,10 +27,11 @@ SIM_DURATION_S = {"imu-handheld": 30.0, "seed000": 3000.0, "seed001": 1500.0}
 
 
 def inputs():
+    from gnomon.datasets import bundled
     from gnomon.io import read
     from gnomon.scenarios import list_presets, load_scenario, simulate
 
-    for path in sorted((ROOT / "tests/data/broad").glob("*_excerpt.*")):
+    for path in sorted(bundled("broad").glob("*_excerpt.*")):
         yield path.stem, read(path)
     full = ROOT.parent / "shared/data/broad"  # the full trials, where present
     for path in sorted(full.glob("*.hdf5")) + sorted(full.glob("*.mat")):

@@ -75,6 +75,7 @@ from gnomon.errors import InputError
 from gnomon.estimators import registry
 from gnomon.estimators.base import Estimate
 from gnomon.metrics import ALIGN_OPTIONS, align_truth, broad_errors_rad, rms_deg, score_broad
+from gnomon.progress import Progress
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_mul, rotvec_from_quat
 
@@ -208,11 +209,7 @@ def _run(trials: Iterable[tuple[str, Callable[[], Recording]]], methods: list[_M
     is ``(name, load)``; with ``named_by_source`` its rows are named by the recording's
     ``source`` (BROAD's trial name) once it is read."""
     rows, errors, timing, alignment = [], [], {}, []
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=n_trials * len(methods), unit="run", desc=desc, leave=False)
+    bar = Progress(n_trials * len(methods), desc, unit="run", enabled=progress, leave=False)
     warmed: set[str] = set()
     for name, load in trials:
         try:
@@ -229,16 +226,13 @@ def _run(trials: Iterable[tuple[str, Callable[[], Recording]]], methods: list[_M
         except Exception as exc:  # a trial that cannot be read or aligned: the others go on
             errors.append({"trial": name, "method": None,
                            "error": f"{type(exc).__name__}: {exc}"})
-            if bar is not None:
-                bar.update(len(methods))
+            bar.update(len(methods))
             continue
         extra = trial_extra(name) if trial_extra else {}
         for method, fn, applies in methods:
-            if bar is not None:
-                bar.set_postfix_str(f"{name[:24]} {method}")
+            bar.note(f"{name[:24]} {method}")
             if not applies(rec):
-                if bar is not None:
-                    bar.update(1)
+                bar.update(1)
                 continue
             try:
                 if method not in warmed:  # compile / load compiled code outside the timing
@@ -255,10 +249,8 @@ def _run(trials: Iterable[tuple[str, Callable[[], Recording]]], methods: list[_M
             except Exception as exc:  # one failure must not lose the other trials
                 errors.append({"trial": name, "method": method,
                                "error": f"{type(exc).__name__}: {exc}"})
-            if bar is not None:
-                bar.update(1)
-    if bar is not None:
-        bar.close()
+            bar.update(1)
+    bar.close()
     return rows, errors, timing, alignment
 
 

@@ -363,10 +363,17 @@ def cmd_benchmark(args) -> int:
     filters = args.filters.split(",") if args.filters else list(default_filters())
     anchors = None if args.anchors is None else (
         [] if args.anchors in ("", "none") else args.anchors.split(","))
-    progress = not args.json and sys.stderr.isatty()
+    progress = _progress(args)
     named = args.dataset in BENCHMARKS
     if named and not args.data:
-        raise InputError(f"gnomon benchmark {args.dataset} needs --data DIR", field="--data")
+        from gnomon.datasets import dataset, dataset_dir
+
+        found = dataset_dir(args.dataset)
+        if found is None:
+            raise InputError(f"no {args.dataset} data set here: fetch it with `gnomon datasets "
+                             f"fetch {args.dataset}`, or give --data DIR, or set "
+                             f"{dataset(args.dataset).env}", field="--data")
+        args.data = str(found)
     if not named and args.data:
         raise InputError("--data is for a named benchmark (broad, tyrex); give the folder "
                          "itself: gnomon benchmark DIR", field="--data")
@@ -516,24 +523,53 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_campaign(args) -> int:
-    """``gnomon.campaign.run_campaign(scenario, runs, out, vary, ...).summary()``."""
+    """``gnomon.campaign.run_campaign(scenario, runs, out, vary, ...).summary()``; with
+    ``--report`` then ``gnomon.report.campaign.build_campaign_report(out, elapsed_s)``."""
     from gnomon.campaign import run_campaign
 
+    if args.report and (args.out is None or args.only is not None):
+        raise InputError("a report is of a whole campaign: give --out DIR (and no --only)",
+                         field="--report")
     summary = run_campaign(args.scenario, args.runs, args.out, args.vary or [],
                            root_seed=args.seed, executor=args.executor,
                            scheduler=args.scheduler, workers=args.workers, resume=args.resume,
                            only=args.only, filters=args.filter,
-                           progress=not args.json and sys.stderr.isatty()).summary()
+                           progress=_progress(args)).summary()
+    report = None
+    if args.report:
+        from gnomon.report.campaign import build_campaign_report
+
+        report = build_campaign_report(args.out, elapsed_s=summary.elapsed_s)
     if args.json:
         print_json(summary.to_dict())
     else:
         _print_campaign(args.scenario, summary)
+        if report is not None:
+            print(f"  report: {report}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    """``gnomon.report.campaign.build_campaign_report(DIR)`` for a campaign directory,
+    ``gnomon.report.html.rebuild_report(DIR)`` for a reproduction's."""
+    if (Path(args.directory) / "campaign.json").is_file():
+        from gnomon.report.campaign import build_campaign_report
+
+        path = build_campaign_report(args.directory)
+    else:
+        from gnomon.report.html import rebuild_report
+
+        path = rebuild_report(args.directory)
+    print(f"wrote {path}")
     return 0
 
 
 def _print_campaign(scenario: str, s) -> None:
     """A ``CampaignSummary`` as text: counts, then a table of the metrics (one run's values
-    with ``--only``; mean / p95 / max over the successful runs otherwise)."""
+    with ``--only``; mean / p95 / max over the successful runs otherwise). The per-axis
+    metrics a budget is built from are left to ``--json`` and ``--report``."""
+    from gnomon.campaign.budget import is_budget_metric
+
     def fmt(v):
         return "n/a" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v)
 
@@ -541,7 +577,8 @@ def _print_campaign(scenario: str, s) -> None:
         r = s.row
         print(f"campaign {scenario}: run {r['index']} of {s.runs} alone (seed {r['seed']}): "
               f"{r['status']}" + (f", {r['error']}" if r["status"] != "ok" else ""))
-        names = [k for k in r if k.startswith("param.")] + list(s.metrics)
+        names = [k for k in r if k.startswith("param.")] + [
+            m for m in s.metrics if not is_budget_metric(m)]
         width = max(map(len, names), default=0)
         for name in names:
             print(f"  {name:<{width}}  {fmt(r[name])}")
@@ -550,9 +587,10 @@ def _print_campaign(scenario: str, s) -> None:
               f"({s.ran} ran now, {s.failed_total} failed), {s.runs_per_s:.2f} runs/s")
         if s.metrics:
             head = f"over {s.rows - s.failed_total} successful runs"
-            width = max(len(head), *map(len, s.metrics))
+            shown = {k: v for k, v in s.metrics.items() if not is_budget_metric(k)}
+            width = max(len(head), *map(len, shown))
             print(f"  {head:<{width}}  {'mean':>9}  {'p95':>9}  {'max':>9}")
-            for name, m in s.metrics.items():
+            for name, m in shown.items():
                 print(f"  {name:<{width}}  {fmt(m['mean']):>9}  {fmt(m['p95']):>9}  "
                       f"{fmt(m['max']):>9}")
         if s.failed_total and s.path:
@@ -561,21 +599,61 @@ def _print_campaign(scenario: str, s) -> None:
         print(f"  results: {s.path}")
 
 
+def cmd_datasets(args) -> int:
+    """``gnomon.datasets.describe`` for every data set, or ``gnomon.datasets.fetch(NAME)``."""
+    from gnomon import datasets
+
+    if args.action == "fetch":
+        if not args.name:
+            raise InputError(f"gnomon datasets fetch needs a NAME: {', '.join(datasets.CATALOGUE)}",
+                             field="NAME")
+        folder = datasets.fetch(args.name, progress=_progress(args))
+        if args.json:
+            print_json(datasets.describe(args.name))
+        else:
+            print(f"{args.name}: complete in {folder}")
+        return 0
+    rows = [datasets.describe(name) for name in datasets.CATALOGUE]
+    if args.json:
+        print_json({"cache": str(datasets.cache_dir()), "datasets": rows})
+        return 0
+    print(f"cache folder: {datasets.cache_dir()} (setting GNOMON_DATA_DIR)")
+    for r in rows:
+        where = {"local": f"local copy in {r['local']}",
+                 "cached": f"fetched into {r['cache']}",
+                 "partly fetched": f"{r['cached_files']} of {r['files']} files fetched into "
+                                   f"{r['cache']}: gnomon datasets fetch {r['name']}",
+                 "not fetched": f"not fetched ({r['bytes'] / 1e6:.1f} MB): "
+                                f"gnomon datasets fetch {r['name']}"}[r["state"]]
+        print(f"\n{r['name']}: {r['title']}")
+        print(f"  licence: {r['licence']}; credit: {r['citation']}")
+        print(f"  source:  {r['source']} ({r['scope']})")
+        print(f"  bundled: {'excerpt in ' + r['bundled'] if r['bundled'] else 'no'}")
+        print(f"  full:    {where}")
+    return 0
+
+
 def cmd_reproduce(args) -> int:
     """``gnomon.reproduce.pNNN.run(out_dir, quick)`` (``all``: ``gnomon.reproduce.run_all``)."""
     from gnomon import reproduce
 
     out = Path(args.out) if args.out else None
     if args.paper == "all":
-        res = reproduce.run_all(out_dir=out, quick=args.quick, progress=not args.json)
+        res = reproduce.run_all(out_dir=out, quick=args.quick, progress=_progress(args))
     else:
-        res = reproduce.run(args.paper, out_dir=out, quick=args.quick, progress=not args.json)
+        res = reproduce.run(args.paper, out_dir=out, quick=args.quick,
+                            progress=_progress(args))
     if args.json:
         print_json(res)
     else:
         print(json.dumps(_clean(json.loads(json.dumps(res, default=_json_default))), indent=2))
         if out is not None:
             print(f"wrote {out}")
+    failed = [p for p, r in res.items() if "error" in r] if args.paper == "all" else []
+    if failed:  # the others ran and are in the report; say which did not, and fail
+        print(f"gnomon: error: reproduction of paper(s) {', '.join(failed)} failed: "
+              f"{'; '.join(res[p]['error'] for p in failed)}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -584,7 +662,7 @@ def cmd_bench(args) -> int:
     from gnomon.speed import markdown_table, run_bench
 
     res = run_bench(samples=args.samples, repeats=args.repeats, runs=args.runs, quick=args.quick,
-                    progress=not args.json)
+                    progress=_progress(args))
     if args.json:
         print_json(res)
     else:
@@ -608,6 +686,20 @@ def _add_csv_options(s) -> None:
     g.add_argument("--accel-unit", help="m/s^2 (default) or g")
     g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
     g.add_argument("--time-unit", help="s (default), ms, us or ns")
+
+
+def _add_quiet_option(s) -> None:
+    s.add_argument("--quiet", action="store_true",
+                   help="no progress bar (there is none in CI, nor when stderr is not a "
+                        "terminal)")
+
+
+def _progress(args) -> bool:
+    """Whether to show progress: ``gnomon.progress.wanted`` (a terminal, not CI), and
+    neither ``--quiet`` nor ``--json``."""
+    from gnomon.progress import wanted
+
+    return wanted(quiet=getattr(args, "json", False) or getattr(args, "quiet", False))
 
 
 def _add_phone_mag_option(s) -> None:
@@ -737,6 +829,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "data set's calibration recording of that phone and day (recording)")
     s.add_argument("--plot", help="write a bar chart, e.g. broad.png (tyrex, DIR: per group)")
     s.add_argument("--json", action="store_true", help="print the JSON result")
+    _add_quiet_option(s)
     s.set_defaults(func=cmd_benchmark)
 
     s = sub.add_parser("bench", help="speed of gnomon's filters vs the reference libraries")
@@ -745,6 +838,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--runs", type=int, default=1000, help="runs of the batch-over-runs kernel")
     s.add_argument("--quick", action="store_true", help="200,000 samples, 3 repeats")
     s.add_argument("--json", action="store_true", help="print the JSON result")
+    _add_quiet_option(s)
     s.set_defaults(func=cmd_bench)
 
     s = sub.add_parser("scenarios", help="list the scenario presets")
@@ -775,8 +869,26 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--only", type=int, metavar="INDEX", help="re-run one run alone")
     s.add_argument("--seed", type=int, default=0, help="root seed (SeedSequence)")
     s.add_argument("--filter", action="append", help="filter(s) to run on each simulation")
+    s.add_argument("--report", action="store_true",
+                   help="then write OUT/report.html: error CDFs, the attitude-knowledge "
+                        "budget (per axis, 3-sigma and p99, sunlit and eclipse), the worst "
+                        "runs with their re-run command, sensitivities, run time, failures")
     s.add_argument("--json", action="store_true")
+    _add_quiet_option(s)
     s.set_defaults(func=cmd_campaign)
+
+    s = sub.add_parser("report", help="the HTML report of a campaign directory (report.html) "
+                                      "or of a reproduction (index.html, built again)")
+    s.add_argument("directory", help="a `gnomon campaign --out` or `gnomon reproduce --out` "
+                                     "directory")
+    s.set_defaults(func=cmd_report)
+
+    s = sub.add_parser("datasets", help="the real data sets: source, licence, bundled or "
+                                        "fetched; `gnomon datasets fetch NAME` downloads one")
+    s.add_argument("action", nargs="?", choices=["list", "fetch"], default="list")
+    s.add_argument("name", nargs="?", help="data set to fetch (broad, tyrex, logs, images)")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_datasets)
 
     from gnomon.reproduce import available as available_papers
 
@@ -787,6 +899,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="directory for figures, metrics.json (and the HTML report)")
     s.add_argument("--quick", action="store_true", help="short version (for CI)")
     s.add_argument("--json", action="store_true", help="print the result as JSON only")
+    _add_quiet_option(s)
     s.set_defaults(func=cmd_reproduce)
     return p
 

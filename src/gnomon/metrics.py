@@ -20,6 +20,8 @@ numbers are computed:
 * ``score``: a summary over a mask (``gnomon estimate``): BROAD split, per-axis, max.
 * ``score_run``: the metrics row of a Monte Carlo run (``gnomon campaign``): RMS, max
   and mean after a convergence window, sunlit/eclipse and BROAD's split when they apply.
+* ``score_run_budget``: the per-body-axis RMS and 99th percentiles of a Monte Carlo run
+  (sunlit / eclipse too), from which a campaign's attitude-knowledge budget is built.
 * ``score_broad``: the BROAD benchmark's per-trial RMSE (``gnomon benchmark broad``).
 * ``compare``: BROAD's metric between two estimates (gnomon's and the device's own,
   ``gnomon estimate --compare onboard``), with their constant heading offset removed.
@@ -175,6 +177,77 @@ def score_run(rec: Recording, q_est, settle_s: float = 0.0) -> dict[str, float]:
         ecl = m & ~rec.sun_valid
         out.update(sunlit_rms_deg=rms(err, sun), eclipse_rms_deg=rms(err, ecl),
                    eclipse_max_deg=_max(err[ecl]))
+    return out
+
+
+#: the body axes of :func:`body_axis_errors_rad`, in column order
+BODY_AXES = ("x", "y", "z")
+
+
+def _error_rotvec(qt, qe) -> np.ndarray:
+    """Rotation vector (rad) of ``conj(qt) ⊗ qe`` for finite (k, 4) inputs: angle
+    ``2·atan2(|v|, |w|)`` along ``v`` (the short arc; scale-free, small-angle safe)."""
+    d = quat_mul(quat_conj(qt), qe)
+    w = d[:, 0]
+    v = d[:, 1:] * np.where(w < 0.0, -1.0, 1.0)[:, None]
+    w = np.abs(w)
+    s = np.sqrt(np.einsum("ij,ij->i", v, v))
+    small = s < 1e-9
+    k = np.where(small, 2.0 / np.where(w > 0.0, w, 1.0),
+                 2.0 * np.arctan2(s, w) / np.where(small, 1.0, s))
+    return k[:, None] * v
+
+
+def body_axis_errors_rad(q_true, q_est) -> np.ndarray:
+    """Per-axis errors in the body axes (rad), shape (N, 3) for inputs (N, 4): the
+    rotation vector of ``δq = conj(q_true) ⊗ q_est`` (components on the true body's x, y,
+    z axes; exact at any angle, equal to the small-angle ``2·δq_xyz``; its norm is
+    :func:`error_angle_rad`). NaN rows where an input has a NaN."""
+    qt, qe, bad = _pair(np.atleast_2d(q_true), np.atleast_2d(q_est))
+    out = np.full((qt.shape[0], 3), np.nan)
+    out[~bad] = _error_rotvec(qt[~bad], qe[~bad])
+    return out
+
+
+def score_run_budget(rec: Recording, q_est, settle_s: float = 0.0) -> dict[str, float]:
+    """The per-axis metrics of one campaign run, for an attitude-knowledge budget (degrees).
+
+    Same samples as :func:`score_run` (from ``settle_s`` s after ``rec.t[0]``, finite
+    error). Per-axis errors are :func:`body_axis_errors_rad`. Keys, for each body axis
+    ``A`` in x, y, z: ``A_rms_deg`` (RMS of the axis error) and ``A_p99_deg`` (99th
+    percentile of its absolute value, linear interpolation); ``p99_deg`` (99th percentile
+    of the total error angle). With a sun sensor (``rec.sun_valid``) the same again over
+    the sunlit and the eclipse samples, prefixed ``sunlit_`` / ``eclipse_`` (NaN when
+    there is no such sample).
+    """
+    qt = np.asarray(rec.q_true, dtype=float)
+    qe = np.asarray(q_est, dtype=float)
+    if qe.shape != qt.shape:
+        raise ValueError(f"q_est: expected shape {qt.shape}, got {qe.shape}")
+    m = (((rec.t - rec.t[0]) >= settle_s) & np.isfinite(qt).all(axis=1)
+         & np.isfinite(qe).all(axis=1))
+    e = np.degrees(_error_rotvec(qt[m], qe[m]))
+    # rows (contiguous, for the partitions): |e_x|, |e_y|, |e_z|, the total angle (the
+    # rotation vector's norm)
+    err = np.empty((4, e.shape[0]))
+    np.abs(e.T, out=err[:3])
+    err[3] = np.sqrt(np.einsum("ij,ij->i", e, e))
+    phases = {"": None}
+    if rec.sun_valid is not None:
+        lit = np.asarray(rec.sun_valid, dtype=bool)[m]
+        phases.update(sunlit_=lit, eclipse_=~lit)
+    out = {}
+    for prefix, sel in phases.items():
+        x = err if sel is None else err[:, sel]
+        if x.shape[1]:
+            ms = np.sqrt(np.einsum("ij,ij->i", x[:3], x[:3]) / x.shape[1])
+            p99 = np.quantile(x, 0.99, axis=1)
+        else:
+            ms = p99 = np.full(4, np.nan)
+        for i, a in enumerate(BODY_AXES):
+            out[f"{prefix}{a}_rms_deg"] = float(ms[i])
+            out[f"{prefix}{a}_p99_deg"] = float(p99[i])
+        out[f"{prefix}p99_deg"] = float(p99[3])
     return out
 
 

@@ -40,6 +40,8 @@ import time
 
 import numpy as np
 
+from gnomon.progress import Progress
+
 __all__ = ["run_bench"]
 
 _IMU_NEEDS = {"gyro", "accel", "mag"}
@@ -128,6 +130,7 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
         times: dict[str, list[float]] = {name: [] for name in methods}
         names = list(methods)
         order = np.random.default_rng(seed)
+        bar = Progress(repeats * len(names), "bench", unit="timing", enabled=progress)
         for _ in range(repeats):
             # interleaved, in a new random order each round: no method always runs first or
             # always after the same neighbour (a call that follows one which freed a lot of
@@ -137,9 +140,8 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
                 t0 = time.perf_counter()
                 fn()
                 times[name].append(time.perf_counter() - t0)
-                if progress:
-                    rate = methods[name][1] / times[name][-1]
-                    print(f"  {name}: {rate / 1e6:.2f} M samples/s", flush=True)
+                bar.update(1, last=f"{name} {methods[name][1] / times[name][-1] / 1e6:.2f} M/s")
+        bar.close()
     rates = {name: methods[name][1] / float(np.median(v)) for name, v in times.items()}
     ref = rates.get("vqf-batch")
     results = {name: {"samples_per_s": rate,

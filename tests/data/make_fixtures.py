@@ -1,4 +1,4 @@
-"""Make the small real-data fixtures in tests/data from the BROAD data set (not run by tests).
+"""Make the small real-data excerpts in src/gnomon/data from the BROAD data set (not run by tests).
 
 BROAD: Laidig, Caruso, Cereatti, Seel, "BROAD — A Benchmark for Robust Inertial
 Orientation Estimation", Data 6(7):72, 2021, doi:10.3390/data6070072, CC BY 4.0.
@@ -9,10 +9,10 @@ Usage (from the repository root)::
 
 BROAD_DIR defaults to $GNOMON_BROAD_DIR, else ../shared/data/broad. Writes
 
-- tests/data/broad/01_undisturbed_slow_rotation_A_excerpt.mat   (MATLAB v5, BROAD layout)
-- tests/data/broad/32_disturbed_attached_magnet_1cm_excerpt.hdf5 (HDF5, BROAD layout)
-- tests/data/broad/trials.json  (the two excerpts with their original trials' groups)
-- tests/data/broad_01_excerpt.csv (gnomon's default CSV header + truth + mask)
+- src/gnomon/data/broad/01_undisturbed_slow_rotation_A_excerpt.mat   (MATLAB v5, BROAD layout)
+- src/gnomon/data/broad/32_disturbed_attached_magnet_1cm_excerpt.hdf5 (HDF5, BROAD layout)
+- src/gnomon/data/broad/trials.json  (the two excerpts with their original trials' groups)
+- src/gnomon/data/broad_01_excerpt.csv (gnomon's default CSV header + truth + mask)
 
 Each BROAD excerpt is a contiguous window of 25 s starting 8 s before the
 first sample with ``movement`` true, so it holds 8 s of the initial rest
@@ -35,8 +35,9 @@ import h5py
 import numpy as np
 import scipy.io
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent.parent
+ROOT = Path(__file__).resolve().parents[2]
+#: the package data folder the excerpts ship in (found at run time through importlib.resources)
+HERE = ROOT / "src" / "gnomon" / "data"
 REST_S = 8.0  # s of initial rest kept before the motion starts
 LENGTH_S = 25.0  # s per excerpt
 FIELDS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "opt_pos", "movement")

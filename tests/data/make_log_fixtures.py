@@ -1,4 +1,4 @@
-"""Make the log fixtures in tests/data/logs from the full sample logs (see README.md here).
+"""Make the log excerpts in src/gnomon/data/logs from the full sample logs (see README.md there).
 
 Run once by hand (the tests never run it): ``python tests/data/make_log_fixtures.py``. It
 reads ``$GNOMON_LOGS_DIR`` (default ``../shared/data/logs``) and ``$GNOMON_TYREX_DIR``
@@ -17,7 +17,8 @@ import numpy as np
 
 from gnomon.datasets import logs_dir, tyrex_dir
 
-HERE = Path(__file__).resolve().parent / "logs"
+#: the package data folder the excerpts ship in (found at run time through importlib.resources)
+HERE = Path(__file__).resolve().parents[2] / "src" / "gnomon" / "data" / "logs"
 PX4_TOPICS = ["sensor_combined", "vehicle_magnetometer", "vehicle_attitude", "vehicle_imu",
               "sensor_gyro", "sensor_accel", "sensor_mag", "vehicle_attitude_groundtruth"]
 

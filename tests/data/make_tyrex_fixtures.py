@@ -1,4 +1,4 @@
-"""Make the motion-capture excerpts in tests/data/logs/tyrex/qualisys (see README.md here).
+"""Make the motion-capture excerpts in src/gnomon/data/logs/tyrex/qualisys (see README.md there).
 
 Run once by hand (the tests never run it): ``python tests/data/make_tyrex_fixtures.py``.
 It reads ``$GNOMON_TYREX_DIR`` (default ``../shared/data/tyrex``) through
@@ -23,7 +23,7 @@ import scipy.io
 from gnomon.datasets import tyrex_dir
 from gnomon.io.phone import read_tyrex
 
-HERE = Path(__file__).resolve().parent / "logs" / "tyrex"
+HERE = Path(__file__).resolve().parents[2] / "src" / "gnomon" / "data" / "logs" / "tyrex"
 
 
 def qtm_excerpt(src: Path, dst: Path, t0: float, t1: float) -> None:

@@ -20,8 +20,15 @@ The package, one job per module:
 * :mod:`~gnomon.campaign.runner`: :func:`run_campaign`, :func:`run_one`.
 * :mod:`~gnomon.campaign.result`: :class:`CampaignResult` and its
   :class:`CampaignSummary` (data; ``gnomon campaign`` prints it).
+* :mod:`~gnomon.campaign.budget`: the attitude-knowledge budget of a table (per body
+  axis and total, 3σ and p99, sunlit and eclipse).
+* :mod:`~gnomon.campaign.sensitivity`: Spearman ρ of each error against each varied
+  parameter.
+* :mod:`~gnomon.campaign.rerun`: the command that re-runs one run alone.
 
-Scores are :func:`gnomon.metrics.score_run`'s. ``docs/campaigns.md`` is the user guide.
+Scores are :func:`gnomon.metrics.score_run`'s and
+:func:`gnomon.metrics.score_run_budget`'s; the report is :mod:`gnomon.report.campaign`.
+``docs/campaigns.md`` is the user guide.
 """
 
 from gnomon.campaign.default_task import (

@@ -17,7 +17,7 @@ import numpy as np
 
 from gnomon.campaign.task import Task
 from gnomon.errors import InputError
-from gnomon.metrics import score_run
+from gnomon.metrics import score_run, score_run_budget
 
 __all__ = ["simulate_and_score", "simulate_and_score_batch", "accepts_filter_key",
            "DEFAULT_TASK"]
@@ -54,7 +54,9 @@ def _simulate_and_score_one(scenario, params: dict, seed: int,
     with a sun sensor also ``F.sunlit_rms_deg``, ``F.eclipse_rms_deg``,
     ``F.eclipse_max_deg`` (NaN when there is no such sample) and ``eclipse_fraction`` of
     the recording; on a vertical reference axis ``F.heading_rms_deg``,
-    ``F.inclination_rms_deg``. Raises what failed the run.
+    ``F.inclination_rms_deg``. For a budget (:func:`gnomon.metrics.score_run_budget`), per
+    body axis ``A`` (x, y, z): ``F.A_rms_deg``, ``F.A_p99_deg``, and ``F.p99_deg``; with a
+    sun sensor the same prefixed ``sunlit_`` / ``eclipse_``. Raises what failed the run.
     """
     result = simulate_and_score_batch([scenario], [params], [seed], filters, settle_s)[0]
     if isinstance(result, BaseException):
@@ -106,7 +108,8 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
         if isinstance(q, BaseException):
             results[k] = q
             return
-        scores = score_run(recs[k], q, _settle_s(scenarios[k], settle_s))
+        settle = _settle_s(scenarios[k], settle_s)
+        scores = {**score_run(recs[k], q, settle), **score_run_budget(recs[k], q, settle)}
         results[k].update({f"{name}.{m}": v for m, v in scores.items()})
 
     results: list = []

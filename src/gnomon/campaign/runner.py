@@ -27,6 +27,7 @@ from gnomon.campaign.result import CampaignResult
 from gnomon.campaign.task import resolve_task
 from gnomon.campaign.worker import CampaignSpec, as_scenario, execute_chunk, execute_run
 from gnomon.errors import InputError
+from gnomon.progress import Progress
 
 __all__ = ["run_campaign", "run_one"]
 
@@ -94,26 +95,6 @@ def _chunks(pending: list[int], n_parallel: int, chunk_size: int | None) -> list
     return [pending[i:i + size] for i in range(0, len(pending), size)]
 
 
-class _Progress:
-    """The progress bar of a campaign (tqdm, on stderr): runs done, failed, rate, time left."""
-
-    def __init__(self, enabled: bool, total: int, desc: str):
-        self.bar = None
-        if enabled:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=total, unit="run", desc=desc, dynamic_ncols=True)
-
-    def update(self, n: int, ran: int, failed: int) -> None:
-        if self.bar is not None:
-            self.bar.set_postfix(done=ran, failed=failed, refresh=False)
-            self.bar.update(n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
 def run_one(scenario, index: int, vary=None, root_seed: int = 0, task=DEFAULT_TASK,
             task_options: Mapping | None = None, filters: Sequence[str] | None = None) -> dict:
     """Run ``index`` of a campaign alone, in this process; returns its row (a dict).
@@ -146,7 +127,9 @@ def run_campaign(scenario, runs: int, out_dir: str | pathlib.Path | None, vary=N
     ``filters``: filter names for the default task. ``task``: a
     :class:`~gnomon.campaign.task.Task`, a function or ``"module:attribute"``;
     ``task_options``: its keyword arguments. ``chunk_size``: runs per chunk (default: about
-    8 chunks per worker, at most 25 runs each). ``progress``: a progress bar on stderr.
+    8 chunks per worker, at most 25 runs each). ``progress``: a progress bar on stderr
+    (runs done, failed, rate, time left; only on a terminal and not in CI:
+    :mod:`gnomon.progress`).
     Raises ``InputError`` for bad input before any run starts.
     """
     t_start = time.perf_counter()
@@ -182,14 +165,14 @@ def run_campaign(scenario, runs: int, out_dir: str | pathlib.Path | None, vary=N
     done = store.open_campaign_dir(out, _manifest(sc, spec, runs), resume)
     pending = [i for i in range(runs) if i not in done]
     ran = failed = 0
-    bar = _Progress(progress, len(pending), f"campaign {sc.name}")
+    bar = Progress(len(pending), f"campaign {sc.name}", unit="run", enabled=progress)
 
     def finished(rows):
         nonlocal ran, failed
         store.write_part(out, rows)
         ran += len(rows)
         failed += sum(r["status"] != "ok" for r in rows)
-        bar.update(len(rows), ran, failed)
+        bar.update(len(rows), failed=failed)
 
     try:
         if pending:

@@ -44,15 +44,23 @@ def run_all(out_dir: Path | None = None, quick: bool = False, progress: bool = F
     """Every available paper into ``out_dir/pNNN``.
 
     Returns ``{paper: result}``, with ``{"error": ...}`` for a paper that failed.
+    ``progress``: a bar over the papers (rate, time left; :mod:`gnomon.progress`) and each
+    paper's own progress.
     """
+    from gnomon.progress import Progress
+
     results = {}
-    for paper in available():
-        sub = None if out_dir is None else Path(out_dir) / f"p{paper}"
-        try:
-            results[paper] = run(paper, sub, quick=quick, progress=progress)
-        except Exception as exc:  # one paper failing must not lose the others
-            results[paper] = {"paper": paper, "error": f"{type(exc).__name__}: {exc}",
-                              "traceback": traceback.format_exc()}
+    papers = available()
+    with Progress(len(papers), "reproduce", unit="paper", enabled=progress) as bar:
+        for paper in papers:
+            bar.note(f"paper {paper}")
+            sub = None if out_dir is None else Path(out_dir) / f"p{paper}"
+            try:
+                results[paper] = run(paper, sub, quick=quick, progress=progress)
+            except Exception as exc:  # one paper failing must not lose the others
+                results[paper] = {"paper": paper, "error": f"{type(exc).__name__}: {exc}",
+                                  "traceback": traceback.format_exc()}
+            bar.update(1)
     if out_dir is not None:
         try:
             from gnomon.report.html import build_report

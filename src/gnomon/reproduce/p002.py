@@ -20,7 +20,6 @@ and how they are checked here:
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
@@ -45,7 +44,6 @@ __all__ = ["run", "SETTLE_S", "filter_params_for", "broad_directory", "load_broa
 
 #: convergence time excluded from the simulated RMS, s
 SETTLE_S = 30.0
-_ROOT = Path(__file__).resolve().parents[3]
 
 
 def filter_params_for(sim: AhrsSimParams, inclination_known: bool = True) -> dict:
@@ -164,14 +162,13 @@ def _time_kernel(n_steps: int, repeats: int = 5) -> dict:
 
 # ---------------------------------------------------------------- BROAD
 def broad_directory() -> Path | None:
-    """``$GNOMON_BROAD_DIR``, else ``../shared/data/broad`` next to the repository, else
-    the BROAD excerpts in ``tests/data`` (``None`` when none exist)."""
-    env = os.environ.get("GNOMON_BROAD_DIR")
-    cands = [Path(env)] if env else []
-    cands += [_ROOT.parent / "shared" / "data" / "broad", _ROOT / "tests" / "data" / "broad",
-              _ROOT / "tests" / "data"]
-    for c in cands:
-        if c.is_dir() and any(c.glob("*.mat")) or c.is_dir() and any(c.glob("*.hdf5")):
+    """The full BROAD trials (:func:`gnomon.datasets.broad_dir`: ``$GNOMON_BROAD_DIR``,
+    ``../shared/data/broad`` beside the repository or the fetched copy), else the BROAD
+    excerpts shipped in the package data (``None`` when neither holds a trial)."""
+    from gnomon.datasets import broad_dir, bundled
+
+    for c in (broad_dir(), bundled("broad")):
+        if c is not None and (any(c.glob("*.mat")) or any(c.glob("*.hdf5"))):
             return c
     return None
 
@@ -309,7 +306,7 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
     d = broad_directory()
     if d is None:
         res["broad_dev_mean_total_deg"] = {"r6": float("nan"), "r3": float("nan")}
-        res["broad_note"] = "no BROAD data found (set GNOMON_BROAD_DIR)"
+        res["broad_note"] = "no BROAD data found (gnomon datasets fetch broad)"
     else:
         say(f"BROAD trials in {d}")
         recs = load_broad_trials(d)

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from gnomon.report.values import display_path
 from gnomon.vision.camera import PinholeCamera, rpy_dcm
 from gnomon.vision.compare import compare_methods
 from gnomon.vision.images import find_image, load_cube_faces, load_gray
@@ -241,7 +242,8 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         "ssd_subpixel_rmse_le_0.05px": methods["ssd_subpixel"]["rmse_px"] <= 0.05,
         "ssd_speedup_vs_phase_correlation": (pc / ss) if np.isfinite(pc) else None,
     }
-    images = {n: {"path": str(find_image(n)[0]), "full_size": find_image(n)[1]}
+    # where each image came from, without the machine's absolute prefix
+    images = {n: {"path": display_path(find_image(n)[0]), "full_size": find_image(n)[1]}
               for n in ("meadow_cube.jpg", "aero1.jpg", "aero3.jpg")}
     result = {
         "paper": "003",

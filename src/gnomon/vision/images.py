@@ -1,11 +1,11 @@
 """Real images for the seed-003 simulations: where they are and how they are loaded.
 
-Full-size originals are looked up in ``$GNOMON_IMAGES_DIR`` (default:
-``../shared/data/images`` relative to the repository root, or ``../../shared/...``
-for a worktree); if absent, the small
-copies bundled in ``tests/data/images`` are used (the cube map downscaled to
-256x256 px faces; the 640x480 OpenCV aerial samples as they are). See
-``tests/data/images/README.md`` for the sources and licences.
+Full-size originals are looked up through :func:`gnomon.datasets.images_dir`
+(``$GNOMON_IMAGES_DIR``, else ``../shared/data/images`` beside the repository, else the
+copy fetched by ``gnomon datasets fetch images``); if absent, the small copies shipped
+in the package data ``gnomon/data/images`` are used (the cube map downscaled to 256x256
+px faces; the 640x480 OpenCV aerial samples as they are). See ``README.md`` there for
+the sources and licences.
 
 Images are returned as grayscale ``float32`` arrays in [0, 1], row 0 at the top.
 """
@@ -13,34 +13,24 @@ Images are returned as grayscale ``float32`` arrays in [0, 1], row 0 at the top.
 from __future__ import annotations
 
 import functools
-import os
 import pathlib
 
 import numpy as np
 
+from gnomon import datasets
 from gnomon.errors import InputError
 
 __all__ = ["images_dir", "find_image", "load_gray", "load_cube_faces", "CUBE_FACES"]
 
-_REPO = pathlib.Path(__file__).resolve().parents[3]
-_BUNDLED = _REPO / "tests" / "data" / "images"
 _BUNDLED_NAMES = {"meadow_cube.jpg": "meadow_cube_256.jpg"}
 
 #: Face order of ``meadow_cube.jpg`` (stacked vertically): OpenGL cube-map order.
 CUBE_FACES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 
-def images_dir() -> pathlib.Path:
-    """Directory of the full-size images (``$GNOMON_IMAGES_DIR`` or ``../shared/data/images``)."""
-    env = os.environ.get("GNOMON_IMAGES_DIR")
-    if env:
-        return pathlib.Path(env)
-    first = (_REPO / ".." / "shared" / "data" / "images").resolve()
-    # a git worktree one level deeper (``wt/<name>``) sees the same shared data
-    for cand in (first, (_REPO / ".." / ".." / "shared" / "data" / "images").resolve()):
-        if cand.is_dir():
-            return cand
-    return first
+def images_dir() -> pathlib.Path | None:
+    """Directory of the full-size images, or None (:func:`gnomon.datasets.images_dir`)."""
+    return datasets.images_dir()
 
 
 def find_image(name: str, prefer_full: bool = True) -> tuple[pathlib.Path, bool]:
@@ -48,15 +38,15 @@ def find_image(name: str, prefer_full: bool = True) -> tuple[pathlib.Path, bool]
 
     Falls back to the bundled small copy; raises ``InputError`` if neither exists.
     """
-    if prefer_full:
-        p = images_dir() / name
-        if p.is_file():
-            return p, True
-    b = _BUNDLED / _BUNDLED_NAMES.get(name, name)
+    full = images_dir()
+    if prefer_full and full is not None and (full / name).is_file():
+        return full / name, True
+    shipped = datasets.bundled("images")
+    b = shipped / _BUNDLED_NAMES.get(name, name)
     if b.is_file():
         return b, False
-    raise InputError(f"image {name!r} not found in {images_dir()} nor in {_BUNDLED}",
-                     file=str(images_dir() / name))
+    where = f"{full} nor in {shipped}" if full is not None else str(shipped)
+    raise InputError(f"image {name!r} not found in {where}", file=name)
 
 
 def _pil():
