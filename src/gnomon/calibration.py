@@ -89,6 +89,10 @@ needs both, reports no coverage); ``ctef`` is a general Cayley-transform ellipso
 for clustering; ``magcc`` is a live UDP/browser tool. None does a constrained, weighted,
 quality-reported fit with a refusal, so the code below uses numpy and scipy only.
 
+On orbit, where the field model gives ``|B|`` at every sample: :mod:`gnomon.twostep`
+(TWOSTEP, the bias alone, attitude-independent) returns the same ``MagCalibration``
+(model ``"twostep"``).
+
 Applying it: :func:`apply_mag_calibration` returns a new ``Recording``
 (``dataclasses.replace``) whose ``mag`` is ``h`` in µT (``mag_unit="uT"``), on the
 magnetometer's own time stamps; nothing else changes. Calibrations are stored as JSON

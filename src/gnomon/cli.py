@@ -269,7 +269,8 @@ def _apply_mag_calibration(rec, which: str):
 def cmd_calibrate_mag(args) -> int:
     """``gnomon.calibration.calibrate_mag(gnomon.io.read(path), field_uT=, location=,
     model=)``, ``save_mag_calibration(out, cal)``, ``plot_mag_calibration(...)``. Exit
-    status 1 when the calibration is refused (the report says why)."""
+    status 1 when the calibration is refused (the report says why). ``--orbit``:
+    :func:`_calibrate_mag_orbit` (TWOSTEP against the recording's field model)."""
     from gnomon.calibration import (
         calibrate_mag,
         mag_uT_of,
@@ -279,6 +280,10 @@ def cmd_calibrate_mag(args) -> int:
 
     _raw_phone_mag(args, "calibrating")
     rec = _read_input(args)
+    if args.orbit:
+        return _calibrate_mag_orbit(args, rec)
+    if args.noise_nT is not None:
+        raise InputError("--noise-nT goes with --orbit", field="--noise-nT")
     location = None
     if args.location:
         parts = args.location.split(",")
@@ -324,6 +329,55 @@ def cmd_calibrate_mag(args) -> int:
             if key in report:
                 print(f"  wrote {report[key]}")
     return 0 if cal.ok else 1
+
+
+def _calibrate_mag_orbit(args, rec) -> int:
+    """``gnomon calibrate mag REC --orbit``: ``gnomon.twostep.calibrate_mag_orbit(rec,
+    noise_nT)`` (TWOSTEP against the recording's field model). ``--json`` prints
+    ``TwostepResult.to_dict()`` (``bias_nT``, ``std_nT``, ``cov_nT2``, ``centred_bias_nT``,
+    ``centred_std_nT``, ``iterations``, ``converged``, ``residual_nT``,
+    ``raw_residual_nT``, ``noise_nT``, ``noise_source``, ``condition``, ``n_samples``,
+    ``mean_field_nT``, ``coverage``, ``field_source``, ``source``) plus ``input``,
+    ``mag_unit``, ``bias_in_mag_unit``, ``std_in_mag_unit`` and ``out``. ``--out`` writes
+    the bias as a calibration JSON (``gnomon estimate --mag-calibration``). Exit status 1
+    when Gauss-Newton did not converge."""
+    from gnomon.calibration import save_mag_calibration
+    from gnomon.recording import MAG_UNITS_TO_TESLA
+    from gnomon.twostep import calibrate_mag_orbit
+
+    for opt in ("field_uT", "location", "date", "plot"):
+        if getattr(args, opt, None):
+            raise InputError(f"--orbit uses the recording's field model; "
+                             f"--{opt.replace('_', '-')} does not apply",
+                             field=f"--{opt.replace('_', '-')}")
+    if args.model != "auto":
+        raise InputError("--orbit estimates the bias alone; --model does not apply",
+                         field="--model")
+    res = calibrate_mag_orbit(rec, noise_nT=args.noise_nT)
+    per_unit = 1e-9 / MAG_UNITS_TO_TESLA[rec.mag_unit]
+    report = {**res.to_dict(), "input": str(args.input), "mag_unit": rec.mag_unit,
+              "bias_in_mag_unit": [float(v) * per_unit for v in res.bias_nT],
+              "std_in_mag_unit": [float(v) * per_unit for v in res.std_nT]}
+    if args.out:
+        save_mag_calibration(args.out, res.calibration())
+        report["out"] = str(args.out)
+    if args.json:
+        print_json(report)
+    else:
+        print(f"TWOSTEP magnetometer bias of {args.input}: {res.n_samples} samples against "
+              f"{res.field_source}, {res.iterations} iterations, "
+              f"{'converged' if res.converged else 'NOT CONVERGED'}")
+        print("  bias_nT [" + ", ".join(f"{v:.1f}" for v in res.bias_nT) + "] +- ["
+              + ", ".join(f"{v:.1f}" for v in res.std_nT) + "] (1 sigma)")
+        if rec.mag_unit != "nT":
+            print(f"  bias_{rec.mag_unit} [" + ", ".join(
+                f"{v:.6g}" for v in report["bias_in_mag_unit"]) + "]")
+        print(f"  residual ||B - b| - |H|| {res.residual_nT:.1f} nT RMS (raw "
+              f"{res.raw_residual_nT:.1f} nT); noise {res.noise_nT:.1f} nT "
+              f"({res.noise_source}); condition {res.condition:.3g}")
+        if "out" in report:
+            print(f"  wrote {report['out']}")
+    return 0 if res.converged else 1
 
 
 def _limit_warnings(est, limits: dict) -> list[dict]:
@@ -765,7 +819,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "quality report; exit status 1 when refused",
         description="Fit offset (hard iron) and a symmetric soft-iron matrix to the log's "
                     "magnetometer: h = S (m - o), |h| = B. Move the device through as many "
-                    "directions as you can (docs/calibration.md).")
+                    "directions as you can (docs/calibration.md). Spacecraft: --orbit "
+                    "estimates the bias alone by TWOSTEP against the recording's field "
+                    "model, whatever the attitude.")
     c.add_argument("input", help="recording file or folder (any format gnomon reads)")
     c.add_argument("--format", default="auto", choices=list(FORMATS))
     _add_log_options(c)
@@ -784,6 +840,13 @@ def build_parser() -> argparse.ArgumentParser:
     _add_phone_mag_option(c)
     c.add_argument("--no-gyro", action="store_true",
                    help="do not use the gyro (start, gate and fallback for the offset)")
+    c.add_argument("--orbit", action="store_true",
+                   help="spacecraft: the bias alone by TWOSTEP against the recording's field "
+                        "model (extra.b_o_model_nT or b_o_nT), attitude-independent "
+                        "(docs/calibration.md, 'On orbit: TWOSTEP')")
+    c.add_argument("--noise-nT", type=float, dest="noise_nT",
+                   help="with --orbit: the magnetometer's noise sigma per axis in nT "
+                        "(default: estimated from the data)")
     _add_csv_options(c)
     c.set_defaults(func=cmd_calibrate_mag)
 
