@@ -26,8 +26,10 @@ def test_presets_are_listed_and_load():
     for name in list_presets():
         sc = load_scenario(name)
         assert sc.name == name
-        if sc.kind == "spacecraft":
-            assert sc.config["step_s"] == 1.0
+        if sc.kind == "spacecraft" and name.startswith("seed"):
+            assert sc.config["step_s"] == 1.0        # the papers' 1 s sampling
+    # the star-tracker preset samples at the tracker's 5 Hz
+    assert load_scenario("smallsat-star-tracker").config["step_s"] == 0.2
 
 
 def test_recording_contract(short000):

@@ -28,8 +28,9 @@ __all__ = ["SCHEMA", "IMU_SCHEMA", "KINDS", "schema_of", "defaults", "validate",
 
 
 class Leaf:
-    """One scenario value: ``kind`` in float/int/bool/str/vec3/inertia/enum/number_or/opt_float,
-    a default, a unit and a one-line description."""
+    """One scenario value: ``kind`` in
+    float/int/bool/str/vec3/inertia/enum/number_or/opt_float/windows, a default, a unit and
+    a one-line description."""
 
     def __init__(self, kind: str, default: Any, unit: str = "", doc: str = "", *,
                  choices: tuple = (), min: float | None = None, min_open: bool = False):
@@ -88,6 +89,15 @@ class Leaf:
                                           and math.isfinite(x) for x in a):
                 raise bad(f"expected 3 numbers (or one for all axes), got {v!r}", field=key)
             return [float(x) for x in a]
+        elif k == "windows":                # a list of [start, end] pairs, start < end
+            ok = isinstance(v, list | tuple) and all(
+                isinstance(w, list | tuple) and len(w) == 2 and all(
+                    isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
+                    for x in w) and w[0] < w[1] for w in v)
+            if not ok:
+                raise bad(f"expected a list of [start, end] pairs with start < end, got {v!r}",
+                          field=key)
+            return [[float(a), float(b)] for a, b in v]
         elif k == "inertia":
             from gnomon.dynamics import check_inertia
 
@@ -203,6 +213,31 @@ SCHEMA: dict = {
             "enabled": L("bool", False, doc="record an accelerometer"),
             "noise_m_s2": L("float", 0.0, "m/s^2", "white noise sigma", min=0),
             "bias_m_s2": L("vec3", [0.0, 0.0, 0.0], "m/s^2", "constant bias"),
+        },
+        "star_tracker": {
+            "enabled": L("bool", False, doc="record a star tracker (extra st_q_ib, st_valid)"),
+            "boresight_b": L("vec3", [0.0, 0.0, -1.0], "",
+                             "boresight direction in b (default: zenith when b = o)"),
+            "noise_cross_arcsec": L("float", 10.0, "arcsec",
+                                    "noise sigma about each axis across the boresight", min=0),
+            "noise_about_arcsec": L("float", 60.0, "arcsec",
+                                    "noise sigma about the boresight", min=0),
+            "rate_hz": L("float", 1.0, "Hz", "update rate (at most 1 / step_s)", min=0,
+                         min_open=True),
+            "latency_s": L("float", 0.0, "s",
+                           "a measurement at t describes the attitude at t - latency", min=0),
+            "sun_exclusion_deg": L("float", 30.0, "deg",
+                                   "no measurement with the Sun closer to the boresight",
+                                   min=0),
+            "earth_limb_exclusion_deg": L("float", 20.0, "deg",
+                                          "no measurement with the Earth's limb closer to "
+                                          "the boresight", min=0),
+            "outage_rate_per_h": L("float", 0.0, "1/h",
+                                   "random outages: start rate while available", min=0),
+            "outage_mean_s": L("float", 0.0, "s", "random outages: mean duration "
+                               "(exponential)", min=0),
+            "outage_windows_s": L("windows", [], "s",
+                                  "scheduled outages: list of [start, end) from the start"),
         },
     },
 }
@@ -370,6 +405,12 @@ def validate(user: dict) -> dict:
         raise InputError("must be a non-zero vector", field="sensors.sun_sensor.boresight_b")
     if cfg["sensors"]["sun_sensor"]["min_illumination"] > 1.0:
         raise InputError("must be in [0, 1]", field="sensors.sun_sensor.min_illumination")
+    st = cfg["sensors"]["star_tracker"]
+    if np.linalg.norm(st["boresight_b"]) == 0.0:
+        raise InputError("must be a non-zero vector", field="sensors.star_tracker.boresight_b")
+    if st["enabled"] and st["rate_hz"] * cfg["step_s"] > 1.0 + 1e-9:
+        raise InputError(f"{st['rate_hz']:g} Hz is faster than the sampling (step_s "
+                         f"{cfg['step_s']:g} s)", field="sensors.star_tracker.rate_hz")
     g = cfg["sensors"]["gyro"]
     if g["step_time_orbits"] is not None and g["step_time_s"] is not None:
         raise InputError("give step_time_orbits or step_time_s, not both",

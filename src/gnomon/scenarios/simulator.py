@@ -16,10 +16,17 @@ The output :class:`gnomon.recording.Recording` (frames ``{"reference": "o", "bod
   ``torque_ctrl_b_Nm`` (magnetorquer torque), ``torque_dist_b_Nm``,
   ``inertia_kg_m2`` and ``inertia_model_kg_m2`` (N, 3, 3; the model one carries the
   scenario's inertia error), ``time_orbits``.
+* With ``sensors.star_tracker.enabled``, also in ``extra``: ``st_q_ib`` (N, 4) the
+  measured inertial attitude ``q̂_ib`` [w, x, y, z] (NaN rows where there is no
+  measurement), ``st_valid`` (N,) bool, ``st_flags`` (N,) uint8 (why a due sample has
+  none: ``gnomon.sensors.STAR_TRACKER_FLAGS``), ``st_boresight_b`` (N, 3) the unit
+  boresight in b (:func:`gnomon.sensors.star_tracker_model`; the truth ``q_ib`` is
+  ``q_io ⊗ q_true``). No Moon exclusion: the environment has no Moon ephemeris.
 
-Random draws: ``numpy.random.SeedSequence(seed).spawn(6)`` -> gyro, magnetometer,
-sun sensor, accelerometer, field-model error, inertia error; each sensor has its
-own generator so changing one sensor's noise leaves the others' draws unchanged.
+Random draws: ``numpy.random.SeedSequence(seed).spawn(7)`` -> gyro, magnetometer,
+sun sensor, accelerometer, field-model error, inertia error, star tracker (the first
+six are the children ``spawn(6)`` gave before the star tracker existed); each sensor
+has its own generator so changing one sensor's noise leaves the others' draws unchanged.
 """
 
 from __future__ import annotations
@@ -39,11 +46,19 @@ from gnomon.environment.sun import illumination_fraction, sun_position_i
 from gnomon.frames import orbital_frame_dcm, parse_epoch, w_io_o_of_orbit
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_dcm, quat_from_euler, quat_mul, quat_rotate
-from gnomon.sensors import accelerometer_model, gyro_model, magnetometer_model, sun_sensor_model
+from gnomon.sensors import (
+    accelerometer_model,
+    boresight_frame,
+    gyro_model,
+    magnetometer_model,
+    star_tracker_model,
+    sun_sensor_model,
+)
 
 __all__ = ["build_orbit", "simulate", "simulate_imu"]
 
 _D2R = np.pi / 180.0
+_AS2R = _D2R / 3600.0
 
 
 def build_orbit(cfg: dict):
@@ -76,8 +91,8 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
     seed = cfg["seed"] if rng_seed is None else int(rng_seed)
     if cfg["kind"] == "imu":
         return simulate_imu(cfg, seed)
-    g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(6))
+    g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia, g_st = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
     epoch = parse_epoch(cfg["epoch"])
     dt = cfg["step_s"]
     n = int(round(cfg["duration_s"] / dt)) + 1
@@ -172,6 +187,19 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
         "inertia_model_kg_m2": np.broadcast_to(J_model, (n, 3, 3)).copy(),
         "time_orbits": t / period,
     }
+    st = cfg["sensors"]["star_tracker"]
+    if st["enabled"]:
+        q_st, st_valid, st_flags = star_tracker_model(
+            t, q_ib, g_st, boresight_b=st["boresight_b"],
+            noise_cross_rad=st["noise_cross_arcsec"] * _AS2R,
+            noise_about_rad=st["noise_about_arcsec"] * _AS2R, rate_hz=st["rate_hz"],
+            latency_s=st["latency_s"], sun_i=s_i, sun_exclusion_rad=st["sun_exclusion_deg"] * _D2R,
+            r_i_m=r_i, earth_limb_exclusion_rad=st["earth_limb_exclusion_deg"] * _D2R,
+            outage_rate_hz=st["outage_rate_per_h"] / 3600.0, outage_mean_s=st["outage_mean_s"],
+            outage_windows_s=st["outage_windows_s"])
+        extra.update({"st_q_ib": q_st, "st_valid": st_valid, "st_flags": st_flags,
+                      "st_boresight_b": np.broadcast_to(
+                          boresight_frame(st["boresight_b"])[:, 2], (n, 3)).copy()})
     return Recording(t=t, gyro=gyro, accel=accel, mag=mag, mag_unit="nT", sun=sun,
                      sun_valid=valid, q_true=q_ob, frames={"reference": "o", "body": "b"},
                      source=f"gnomon.simulate {cfg['name'] or scenario.source} seed={seed}",
