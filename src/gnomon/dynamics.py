@@ -56,14 +56,18 @@ def check_inertia(J, field: str = "spacecraft.inertia_kg_m2") -> np.ndarray:
         raise InputError(f"moments of inertia must be positive, got diagonal {np.diag(a).tolist()}",
                          field=field)
     if not np.allclose(a, a.T, rtol=1e-9, atol=1e-12):
-        raise InputError("inertia tensor must be symmetric", field=field)
+        i, j = np.unravel_index(np.argmax(np.abs(a - a.T)), a.shape)
+        raise InputError(f"inertia tensor must be symmetric: element [{i}][{j}] = {a[i, j]:g} "
+                         f"but [{j}][{i}] = {a[j, i]:g} (products of inertia appear twice)",
+                         field=field)
     ev = np.linalg.eigvalsh(a)
     if ev[0] <= 0:
         raise InputError(f"inertia tensor is not positive definite (eigenvalues "
                          f"{np.round(ev, 6).tolist()})", field=field)
     if ev[2] > ev[0] + ev[1] + 1e-12 * ev[2]:
         raise InputError(f"principal moments {np.round(ev, 6).tolist()} violate the triangle "
-                         "inequality (no rigid body has them)", field=field)
+                         f"inequality J1 + J2 >= J3 ({ev[0]:.6g} + {ev[1]:.6g} < {ev[2]:.6g}: "
+                         "no rigid body has them)", field=field)
     return a
 
 

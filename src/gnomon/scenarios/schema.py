@@ -1,10 +1,12 @@
 """The scenario schema: every key a scenario file may hold, its default, type and unit.
 
 A scenario is a nested mapping; ``validate(user_dict)`` merges it over the
-defaults, rejecting unknown keys by their dotted name (``sensors.gyro.bias_deg``)
-and checking every leaf's type and range, then the cross-field rules (step
-divides duration, orbit above the atmosphere, inertia positive definite). Every
-error is one ``InputError`` naming the key, raised before any simulation.
+defaults, rejecting unknown keys by their dotted name (``sensors.gyro.bias_deg``,
+with a "did you mean" for a near miss) and checking every leaf's type and range, then
+the cross-field rules (step divides duration, orbit above the atmosphere, inertia
+symmetric, positive definite, obeying the triangle inequality and in kg m^2, TLE
+well-formed with valid checksums and near the scenario's epoch). Every error is one
+``InputError`` naming the key and the value, raised before any simulation.
 
 Two schemas, chosen by the top-level ``kind``: ``SCHEMA`` for a spacecraft in orbit
 (the default) and ``IMU_SCHEMA`` for an IMU on the ground (``kind: imu``).
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import datetime
+import difflib
 import math
 import numbers
 from typing import Any
@@ -284,6 +287,36 @@ KINDS = {"spacecraft": SCHEMA, "imu": IMU_SCHEMA}
 MAX_STEPS = 1e9
 
 
+#: a scenario epoch further than this from the TLE's epoch is refused (SGP4 has drifted
+#: by tens to hundreds of km by then: the TLE is not of this time)
+MAX_TLE_AGE_DAYS = 30.0
+#: a magnetometer noise above this is not a magnetometer (the field in LEO is < 6e4 nT)
+MAX_MAG_NOISE_NT = 1e5
+#: a radius of gyration sqrt(J_max / mass) above this is an inertia in the wrong unit
+MAX_GYRATION_RADIUS_M = 100.0
+
+
+def _check_tle_epoch(tle_epoch: datetime.datetime, epoch: str) -> None:
+    """``InputError`` on ``epoch`` if it is more than ``MAX_TLE_AGE_DAYS`` from the TLE's."""
+    days = (parse_epoch(epoch) - tle_epoch).total_seconds() / 86400.0
+    if abs(days) > MAX_TLE_AGE_DAYS:
+        raise InputError(f"{epoch} is {days:+.1f} days from the TLE's epoch "
+                         f"{tle_epoch.isoformat().replace('+00:00', 'Z')} (at most "
+                         f"{MAX_TLE_AGE_DAYS:g}): set epoch to the TLE's, or use a newer TLE",
+                         field="epoch")
+
+
+def _check_inertia_units(sc: dict) -> None:
+    """``InputError`` if the inertia, with the mass, is far too large for kg m^2 (a tensor
+    in kg mm^2 or g cm^2 is 1e6 or 1e7 times too large)."""
+    j_max = float(np.max(np.linalg.eigvalsh(np.asarray(sc["inertia_kg_m2"]))))
+    radius = math.sqrt(j_max / sc["mass_kg"])
+    if radius > MAX_GYRATION_RADIUS_M:
+        raise InputError(f"largest moment {j_max:.4g} kg m^2 with mass_kg {sc['mass_kg']:g} "
+                         f"is a radius of gyration of {radius:.3g} m: given in kg mm^2 or "
+                         "g cm^2? (kg m^2 expected)", field="spacecraft.inertia_kg_m2")
+
+
 def schema_of(config: dict | None) -> dict:
     """The schema of a scenario mapping: by its ``kind`` (no kind: a spacecraft)."""
     kind = (config or {}).get("kind", "spacecraft") if isinstance(config, dict) else "spacecraft"
@@ -316,7 +349,7 @@ def _leaf(key: str, schema: dict = SCHEMA):
         if not isinstance(node, dict) or p not in node:
             where = ".".join(parts[: i + 1])
             known = sorted(node) if isinstance(node, dict) else []
-            raise InputError(f"unknown scenario key {where!r}" +
+            raise InputError(f"unknown scenario key {where!r}" + _did_you_mean(where, schema) +
                              (f"; known here: {', '.join(known)}" if known else ""), field=where)
         node = node[p]
     return node
@@ -342,16 +375,46 @@ def set_dotted(d: dict, key: str, value, schema: dict = SCHEMA) -> None:
     cur[parts[-1]] = value
 
 
-def _merge(user: dict, schema: dict, out: dict, prefix: str) -> None:
+def _did_you_mean(key: str, root: dict) -> str:
+    """``"; did you mean 'a.b.c'?"`` for an unknown dotted ``key``: the closest key of
+    the same section (difflib), else the keys elsewhere with the same last name (a value
+    put in the wrong section), else the closest key anywhere; ``""`` when none is close."""
+    parts = key.split(".")
+    node: Any = root
+    for p in parts[:-1]:
+        node = node.get(p) if isinstance(node, dict) else None
+    names = sorted(node) if isinstance(node, dict) else []
+    near = difflib.get_close_matches(parts[-1], names, n=1, cutoff=0.6)
+    if near:
+        cand = [".".join(parts[:-1] + near)]
+    else:
+        every = _all_keys(root)
+        cand = [k for k in every if k.split(".")[-1] == parts[-1]]
+        cand = cand or difflib.get_close_matches(key, every, n=1, cutoff=0.75)
+    return f"; did you mean {' or '.join(repr(c) for c in cand)}?" if cand else ""
+
+
+def _all_keys(schema: dict, prefix: str = "") -> list[str]:
+    """Every dotted key of ``schema``, sections included."""
+    out = []
+    for k, v in schema.items():
+        out.append(prefix + k)
+        if isinstance(v, dict):
+            out += _all_keys(v, f"{prefix}{k}.")
+    return out
+
+
+def _merge(user: dict, schema: dict, out: dict, prefix: str, root: dict | None = None) -> None:
+    root = schema if root is None else root
     if not isinstance(user, dict):
         raise InputError(f"expected a mapping, got {user!r}", field=prefix.rstrip(".") or None)
     for k, v in user.items():
         key = f"{prefix}{k}"
         if k not in schema:
-            raise InputError(f"unknown scenario key {key!r}; known here: "
-                             f"{', '.join(sorted(schema))}", field=key)
+            raise InputError(f"unknown scenario key {key!r}{_did_you_mean(key, root)}; known "
+                             f"here: {', '.join(sorted(schema))}", field=key)
         if isinstance(schema[k], dict):
-            _merge(v, schema[k], out[k], key + ".")
+            _merge(v, schema[k], out[k], key + ".", root)
         else:
             out[k] = schema[k].check(key, v)
 
@@ -359,6 +422,7 @@ def _merge(user: dict, schema: dict, out: dict, prefix: str) -> None:
 def validate(user: dict) -> dict:
     """Merge ``user`` over the defaults and validate it; returns the full nested dict."""
     from gnomon.environment.orbit import MIN_ALTITUDE_M, R_EARTH, TLEOrbit
+    from gnomon.environment.tle import check_tle
 
     schema = schema_of(user)
     cfg = defaults(schema)
@@ -395,9 +459,15 @@ def validate(user: dict) -> dict:
         if o["eccentricity"] >= 1.0:
             raise InputError(f"must be < 1, got {o['eccentricity']}", field="orbit.eccentricity")
     else:
-        if not o["tle_line1"] or not o["tle_line2"]:
-            raise InputError("kind 'tle' needs tle_line1 and tle_line2", field="orbit.tle_line1")
-        TLEOrbit(o["tle_line1"], o["tle_line2"])
+        for n_line in (1, 2):
+            if not o[f"tle_line{n_line}"]:
+                raise InputError("kind 'tle' needs tle_line1 and tle_line2; this one is "
+                                 "missing", field=f"orbit.tle_line{n_line}")
+        check_tle(o["tle_line1"], o["tle_line2"])
+        _check_tle_epoch(TLEOrbit(o["tle_line1"], o["tle_line2"]).epoch, cfg["epoch"])
+    if o["kind"] != "tle" and (o["tle_line1"] or o["tle_line2"]):
+        raise InputError(f"TLE lines are given but orbit.kind is {o['kind']!r}, which ignores "
+                         "them (set kind: tle)", field="orbit.kind")
     inc = o["inclination_deg"]
     if not isinstance(inc, str) and not 0.0 <= inc <= 180.0:
         raise InputError(f"must be in [0, 180] deg, got {inc:g}", field="orbit.inclination_deg")
@@ -411,6 +481,12 @@ def validate(user: dict) -> dict:
     if st["enabled"] and st["rate_hz"] * cfg["step_s"] > 1.0 + 1e-9:
         raise InputError(f"{st['rate_hz']:g} Hz is faster than the sampling (step_s "
                          f"{cfg['step_s']:g} s)", field="sensors.star_tracker.rate_hz")
+    _check_inertia_units(cfg["spacecraft"])
+    noise = cfg["sensors"]["magnetometer"]["noise_nT"]
+    if noise > MAX_MAG_NOISE_NT:
+        raise InputError(f"{noise:g} nT is more than the Earth's field itself (at most "
+                         f"~6e4 nT in low orbit): given in pT? (nT expected)",
+                         field="sensors.magnetometer.noise_nT")
     g = cfg["sensors"]["gyro"]
     if g["step_time_orbits"] is not None and g["step_time_s"] is not None:
         raise InputError("give step_time_orbits or step_time_s, not both",
