@@ -42,6 +42,7 @@ def test_the_default_follows_the_sensors(spacecraft, imu):
     name, why = registry.default_for(_without(imu, "mag"))
     assert name == "tilt-cf"
     assert "gyro, accel" in why and "robust-ahrs" in why  # what it holds, what it lacked
+    assert "mekf" not in why  # not the spacecraft filters an IMU log was never meant for
     assert registry.default_for(imu, offline=True)[0] == "eskf-offline"
     # whatever is chosen runs on the recording
     for rec in (spacecraft, no_sun, imu, _without(imu, "mag")):

@@ -107,7 +107,8 @@ def default_for(rec, offline: bool = False) -> tuple[str, str]:
             create(name).check_inputs(rec)
         except InputError:
             continue
-        skipped = order[:order.index(name)]
+        family = get(name).kind  # name only the filters of its own family it could not run
+        skipped = [n for n in order[:order.index(name)] if get(n).kind == family]
         why = f"the recording holds {held}"
         if skipped:
             why += f"; not enough for {', '.join(skipped)}"
