@@ -44,27 +44,26 @@ def imu_factory():
     return synthetic_imu
 
 
+def _full_dataset(name: str, what: str):
+    """The full data set ``name``'s folder (``gnomon.datasets.dataset_dir``), or a skip
+    naming its setting and how to fetch it."""
+    from gnomon.datasets import dataset, dataset_dir
+
+    d = dataset_dir(name)
+    if d is None:
+        pytest.skip(f"{what} not found: set {dataset(name).env} (default "
+                    f"../shared/data/{name} beside the repository), or run "
+                    f"`gnomon datasets fetch {name}`")
+    return d
+
+
 @pytest.fixture(scope="session")
 def full_broad():
     """The full BROAD data directory, or a clear skip (setting: GNOMON_BROAD_DIR)."""
-    from gnomon.datasets import broad_dir
-
-    d = broad_dir()
-    if d is None:
-        pytest.skip("full BROAD data not found: set GNOMON_BROAD_DIR (default "
-                    "../shared/data/broad beside the repository), or run "
-                    "`gnomon datasets fetch broad`")
-    return d
+    return _full_dataset("broad", "full BROAD data")
 
 
 @pytest.fixture(scope="session")
 def full_tyrex():
     """The tyrex smartphone data set's root, or a clear skip (setting: GNOMON_TYREX_DIR)."""
-    from gnomon.datasets import tyrex_dir
-
-    d = tyrex_dir()
-    if d is None:
-        pytest.skip("tyrex data set not found: set GNOMON_TYREX_DIR (default "
-                    "../shared/data/tyrex beside the repository), or run "
-                    "`gnomon datasets fetch tyrex`")
-    return d
+    return _full_dataset("tyrex", "tyrex data set")
