@@ -12,7 +12,7 @@ from gnomon.estimators import registry
 from gnomon.estimators.robust_ahrs import RobustAHRS
 from gnomon.estimators.robust_ahrs_offline import RobustAHRSOffline, reversed_in_time
 from gnomon.io import write
-from gnomon.metrics import error_angle_rad
+from gnomon.metrics import body_axis_errors_rad, error_angle_rad
 from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs
 
 
@@ -94,14 +94,6 @@ def test_cli_offline_picks_the_offline_forms(tmp_path, capsys):
     assert plot.stat().st_size > 20_000
 
 
-def _body_rotation_error(q_true, q_est):
-    """Rotation vector (rad, body axes) of ``conj(q̂) ⊗ q`` (small-angle, ``w >= 0``)."""
-    from gnomon.rotation import quat_conj, quat_mul
-
-    d = quat_mul(quat_conj(q_est), q_true)
-    return 2.0 * d[:, 1:] * np.where(d[:, :1] < 0.0, -1.0, 1.0)
-
-
 def test_body_std_is_the_diagonal_of_the_rotated_covariance():
     """``body_std`` against numpy: ``diag(Rᵀ Σ R)`` for ``Σ = diag(vt, vt, vh) + f I``."""
     from gnomon.kernels.offline import body_std
@@ -130,7 +122,7 @@ def test_robust_ahrs_offline_uncertainty_is_about_right():
     for seed in range(30, 42):
         rec = _sim(seed=seed)
         e = RobustAHRSOffline().run(rec)
-        eps = _body_rotation_error(rec.q_true, e.q)
+        eps = body_axis_errors_rad(rec.q_true, e.q)  # its sign does not matter here
         nees.append(((eps / e.signals["att_std_rad"]) ** 2).sum(1).mean())
     assert 1.5 < np.mean(nees) < 6.0, np.round(nees, 2)
 

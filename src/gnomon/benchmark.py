@@ -74,10 +74,16 @@ from gnomon import anchors as anchors_mod
 from gnomon.errors import InputError
 from gnomon.estimators import registry
 from gnomon.estimators.base import Estimate
-from gnomon.metrics import ALIGN_OPTIONS, align_truth, broad_errors_rad, rms_deg, score_broad
+from gnomon.metrics import (
+    ALIGN_OPTIONS,
+    align_truth,
+    body_axis_errors_rad,
+    broad_errors_rad,
+    rms_deg,
+    score_broad,
+)
 from gnomon.progress import Progress
 from gnomon.recording import Recording
-from gnomon.rotation import quat_conj, quat_mul, rotvec_from_quat
 
 __all__ = ["run_broad", "run_tyrex", "run_benchmark", "default_filters", "parse_align",
            "TYREX_ANCHORS", "BENCHMARKS", "plot_benchmark", "group_kinds",
@@ -177,14 +183,14 @@ def _methods(filters: Sequence[str], anchors: Sequence[str] | None) -> list[_Met
 def _nees(rec: Recording, q_est, std) -> float:
     """Mean normalised estimation error squared of an estimate that carries its per-axis
     1-sigma ``std`` (N, 3) rad (``att_std_rad``): ``Σ_i (ε_i / σ_i)²`` averaged over the
-    scored samples, ``ε`` the rotation vector (body axes) of ``conj(q̂) ⊗ q_true``. An
-    honest uncertainty gives 3; larger means the band is too narrow for this data."""
+    scored samples, ``ε`` the body-axis error (``metrics.body_axis_errors_rad``). An honest
+    uncertainty gives 3; larger means the band is too narrow for this data."""
     q = np.asarray(q_est, dtype=float)
     std = np.asarray(std, dtype=float)
     m = rec.score_mask & np.all(np.isfinite(q), axis=1) & np.all(std > 0, axis=1)
     if not m.any():
         return float("nan")
-    eps = rotvec_from_quat(quat_mul(quat_conj(q[m]), rec.q_true[m]))
+    eps = body_axis_errors_rad(rec.q_true[m], q[m])
     return float(np.mean(np.sum((eps / std[m]) ** 2, axis=1)))
 
 
