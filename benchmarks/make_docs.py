@@ -17,7 +17,9 @@ JSON results (between ``<!-- tyrex:start -->`` and ``<!-- tyrex:end -->``). The 
 means) from the same runs and its tuning table (``eskf-tuning``) from
 ``docs/figures/defaults_tuning.json`` (``benchmarks/defaults_tuning.py``). With the tyrex
 data set, ``docs/calibration.md`` gets its table (``calibration-tyrex``) from the same
-benchmark with ``--mag raw --mag-calibration recording|self``.
+benchmark with ``--mag raw --mag-calibration recording|self``. The spacecraft MEKF's
+page (``docs/estimators/mekf.md``, ``mekf-targets``) gets its tables from
+``benchmarks/mekf_targets.py`` (simulations, no data set).
 """
 
 from __future__ import annotations
@@ -316,6 +318,10 @@ def main() -> None:
     offline_page.write_text(replace_section(
         offline_page.read_text(), "offline-results",
         offline_section(broad, cal if tyrex is not None else None)))
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import mekf_targets  # the spacecraft MEKF's targets (simulated; about a minute)
+
+    mekf_targets.main(["--doc", str(ROOT / "docs" / "estimators" / "mekf.md")])
     eskf_page = ROOT / "docs" / "estimators" / "eskf.md"
     text = replace_section(eskf_page.read_text(), "eskf-results",
                            eskf_results(broad, cal if tyrex is not None else None))

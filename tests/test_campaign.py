@@ -179,14 +179,14 @@ def test_sigkill_then_resume_gives_the_uninterrupted_table(tmp_path, reference):
 
 
 def test_failing_runs_are_recorded_and_the_rest_finish(tmp_path):
-    vary = {"duration_s": "400", "filter.mekf-spacecraft.p0_att_rad": "choice(0.05, -1.0)"}
+    vary = {"duration_s": "400", "filter.mekf-spacecraft.sigma0_att_rad": "choice(0.05, -1.0)"}
     res = run_campaign("seed001", 8, tmp_path, vary, root_seed=3, executor="local", workers=2,
                        filters=FILTERS, progress=False)
     t = res.table
-    bad = t["param.filter.mekf-spacecraft.p0_att_rad"] < 0
+    bad = t["param.filter.mekf-spacecraft.sigma0_att_rad"] < 0
     assert 0 < bad.sum() < 8
     assert (t.loc[bad, "status"] == "failed").all()
-    assert t.loc[bad, "error"].str.contains("p0_att_rad").all()
+    assert t.loc[bad, "error"].str.contains("sigma0_att_rad").all()
     assert (t.loc[~bad, "status"] == "ok").all()
     assert t.loc[~bad, "mekf-spacecraft.rms_deg"].between(0.0, 2.0).all()
     assert res.failed == bad.sum()

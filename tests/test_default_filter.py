@@ -35,9 +35,9 @@ def _without(rec, *names):
 
 def test_the_default_follows_the_sensors(spacecraft, imu):
     """Each default is the first of the registry's order whose inputs the recording has."""
-    assert registry.default_for(spacecraft)[0] == "mekf-spacecraft"
+    assert registry.default_for(spacecraft)[0] == "mekf"
     no_sun = _without(spacecraft, "sun", "sun_valid", "extra.s_o")
-    assert registry.default_for(no_sun)[0] == "mekf-delayed"
+    assert registry.default_for(no_sun)[0] == "mekf"  # the one MEKF takes what there is
     assert registry.default_for(imu)[0] == "robust-ahrs"
     name, why = registry.default_for(_without(imu, "mag"))
     assert name == "tilt-cf"
@@ -63,7 +63,7 @@ def test_estimate_on_a_spacecraft_recording_takes_the_spacecraft_mekf(tmp_path, 
     path = write(tmp_path / "sc.h5", spacecraft)
     assert main(["estimate", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["filter"] == "mekf-spacecraft"
+    assert out["filter"] == "mekf"
     assert "sun" in out["filter_chosen_because"]
     assert out["errors"]["total_deg"] < 1.0
     assert main(["estimate", str(path)]) == 0

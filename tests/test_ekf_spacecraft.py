@@ -1,4 +1,4 @@
-"""Seed-001 EKF and the gyro-aided MEKF: Jacobians against finite differences, the
+"""Seed-001 EKF and the gyro-aided MEKF preset: Jacobians against finite differences, the
 measurement model against gnomon.rotation, convergence in the ideal case, eclipse,
 compiled kernels against their interpreted twins."""
 
@@ -9,9 +9,8 @@ import pytest
 
 from gnomon.estimators import registry
 from gnomon.estimators.ekf_spacecraft import EKFSpacecraft, triad_q_ob
-from gnomon.estimators.mekf_spacecraft import MEKFSpacecraft
+from gnomon.estimators.mekf import MEKFSpacecraft
 from gnomon.kernels import ekf_spacecraft as K
-from gnomon.kernels import mekf_spacecraft as KM
 from gnomon.kernels.linalg import skew_arr
 from gnomon.metrics import error_angle_rad
 from gnomon.recording import Recording
@@ -140,10 +139,10 @@ def test_invalid_sun_rows_are_not_used(noisy):
         assert np.all(np.isnan(a.signals["innovation_sun"][~noisy.sun_valid]))
 
 
-@pytest.mark.parametrize("cls, kernel", [(EKFSpacecraft, K), (MEKFSpacecraft, KM)])
+@pytest.mark.parametrize("cls, kernel", [(EKFSpacecraft, K)])
 def test_kernel_equals_interpreted_twin(noisy, cls, kernel, monkeypatch):
     """The compiled batch against its ``py_func`` twin, sample by sample in every signal,
-    also when a run continues an earlier one."""
+    also when a run continues an earlier one (the MEKF's twin: tests/test_mekf.py)."""
     rec = noisy.slice(1800, 1950)           # crosses the eclipse entry at 1859 s
     f = cls()
     a = [f.run(rec.slice(0, 60)), f.run(rec.slice(60, len(rec)))]

@@ -9,7 +9,7 @@ import pytest
 from gnomon.errors import InputError
 from gnomon.estimators import registry
 from gnomon.estimators.ecf_spacecraft import ExplicitSpacecraftCF, vector_pairs
-from gnomon.estimators.mekf_spacecraft import MagGyroMEKF
+from gnomon.estimators.mekf import MEKFDelayed
 from gnomon.estimators.qcf import QuaternionCF
 from gnomon.metrics import error_angle_rad
 from gnomon.recording import Recording
@@ -74,7 +74,7 @@ def _reference_run(f, rec, pairs, q0, q_mes=None, ok=None):
         else:
             second = (pairs["mag_b"][i], pairs["mag_o"][i], pairs["sec_b"][i],
                       pairs["sec_o"][i], pairs["sec_valid"][i])
-            if isinstance(f, MagGyroMEKF):
+            if isinstance(f, MEKFDelayed):
                 out[i] = f.step(*common, *second, pairs["substituted"][i])
             else:
                 out[i] = f.step(*common, *second)
@@ -132,12 +132,12 @@ def test_kernels_match_readable_references(substitute):
     if substitute == "none":
         assert est.signals["mes_unusable"][220] and est.signals["mes_unusable"][300]
     mekf_sub = "none" if substitute == "none" else "delayed"
-    mekf = MagGyroMEKF(sigma_mag_rad=0.01, sun_substitute=mekf_sub, delay_samples=100)
+    mekf = MEKFDelayed(sigma_mag_rad=0.01, sun_substitute=mekf_sub, delay_samples=100)
     est = mekf.run(rec, q0=q0)
     pairs_m = vector_pairs(rec, mekf_sub, 100)
-    ref = _reference_run(MagGyroMEKF(mekf.params), rec, pairs_m, q0)
+    ref = _reference_run(MEKFDelayed(mekf.params), rec, pairs_m, q0)
     assert np.max(np.abs(est.q - ref)) < 1e-10
-    assert np.max(np.abs(est.q - _streamed(MagGyroMEKF(mekf.params), rec, q0))) < 1e-10
+    assert np.max(np.abs(est.q - _streamed(MEKFDelayed(mekf.params), rec, q0))) < 1e-10
     assert np.all(np.isfinite(est.q))
 
 
@@ -147,7 +147,7 @@ def test_readable_step_equals_the_kernel_sample_by_sample_in_every_signal():
     q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([3.0, -2.0, 4.0])))
     names = ("mag_unusable", "sun_unusable", "gap", "coast")
     for f in (ExplicitSpacecraftCF(delay_samples=50, kp_rad_s=0.2, ki_rad_s2=1e-3),
-              MagGyroMEKF(delay_samples=50, sigma_mag_rad=0.01)):
+              MEKFDelayed(delay_samples=50, sigma_mag_rad=0.01)):
         est = f.run(rec, q0=q0)
         pairs = vector_pairs(rec, "delayed", delay_samples=50)
         g = type(f)(f.params)
@@ -155,13 +155,13 @@ def test_readable_step_equals_the_kernel_sample_by_sample_in_every_signal():
         for i in range(len(rec)):
             row = [pairs[k][i] for k in ("dt", "gyro", "w_io_o", "mag_b", "mag_o", "sec_b",
                                          "sec_o", "sec_valid")]
-            if isinstance(g, MagGyroMEKF):
+            if isinstance(g, MEKFDelayed):
                 row.append(pairs["substituted"][i])
             q = g.step(*row)
             assert np.max(np.abs(q - est.q[i])) < 1e-10, i
             assert np.max(np.abs(g.bias - est.signals["bias_rad_s"][i])) < 1e-12, i
             assert [g.flags[k] for k in names] == [bool(est.signals[k][i]) for k in names], i
-        if isinstance(g, MagGyroMEKF):
+        if isinstance(g, MEKFDelayed):
             np.testing.assert_allclose(g.P, f.P, rtol=1e-8, atol=1e-16)
 
 
@@ -192,7 +192,7 @@ def test_a_run_continues_a_streamed_state():
     rest, equals one run (the tail of the delayed substitute included)."""
     rec = _messy(spacecraft(n=700, bias=(1e-4, -2e-4, 5e-5), mag_noise=200.0))
     q0 = quat_mul(rec.q_true[0], quat_from_rotvec(np.radians([3.0, -2.0, 4.0])))
-    for cls in (ExplicitSpacecraftCF, MagGyroMEKF):
+    for cls in (ExplicitSpacecraftCF, MEKFDelayed):
         f = cls(delay_samples=100)
         whole = f.run(rec, q0=q0).q
         g = cls(f.params)
@@ -270,7 +270,7 @@ def test_whole_outage_without_sun_never_nan_and_flags():
     rec = dataclasses.replace(rec, sun=np.full((len(rec), 3), np.nan),
                               sun_valid=np.zeros(len(rec), bool))
     for f in (QuaternionCF(kp_single_rad_s=0.0, ki_single_rad_s2=0.0),
-              ExplicitSpacecraftCF(sun_substitute="none"), MagGyroMEKF()):
+              ExplicitSpacecraftCF(sun_substitute="none"), MEKFDelayed()):
         est = f.run(rec)
         assert np.all(np.isfinite(est.q)) and np.all(np.isfinite(est.signals["bias_rad_s"]))
     # the paper's substitute starts after M samples; before, the QCF coasts and says so

@@ -27,7 +27,8 @@ DEFAULT_TASK = "gnomon.campaign:simulate_and_score"
 
 def accepts_filter_key(key: str) -> bool:
     """Whether ``key`` is ``filter.NAME.PARAM`` of a registered filter. Raises
-    ``InputError`` for an unknown filter or an unknown parameter of a known one."""
+    ``InputError`` for an unknown filter or an unknown (or renamed: the new name is
+    given) parameter of a known one."""
     from gnomon.estimators import registry
 
     parts = key.split(".")
@@ -35,6 +36,9 @@ def accepts_filter_key(key: str) -> bool:
         return False
     cls = registry.get(parts[1])
     names = {f.name for f in dataclasses.fields(cls.Params)}
+    if parts[2] in cls.Params.renamed:
+        raise InputError(f"renamed: use filter.{parts[1]}.{cls.Params.renamed[parts[2]]} "
+                         f"(check its unit with `gnomon filters`)", field=key)
     if parts[2] not in names:
         raise InputError(f"unknown parameter of filter {parts[1]!r}; known: "
                          f"{', '.join(sorted(names))}", field=key)

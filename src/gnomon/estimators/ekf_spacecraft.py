@@ -23,9 +23,8 @@ Measurements: unit field and sun vectors in b, ``y = R(q)^T [b̂_o; ŝ_o]``,
 quaternion is renormalised after prediction and update. In eclipse
 (``sun_valid`` false) only the magnetometer rows are used. No gyro.
 
-Its gyro-aided remedy, ``MEKFSpacecraft`` ("mekf-spacecraft"), lives beside the
-seed-000 MEKF in :mod:`gnomon.estimators.mekf_spacecraft`; it shares this module's input
-preparation (``reference_inputs``) and initial attitude (TRIAD).
+Its gyro-aided remedy is the one spacecraft MEKF, :mod:`gnomon.estimators.mekf`
+(``mekf``; ``mekf-spacecraft`` is its seed-001 preset).
 
 ``run`` calls the kernel ``gnomon.kernels.ekf_spacecraft.ekf_batch`` (coefficients
 ``coefficients(params, J, gg)``, state record ``STATE`` holding ``z``, ``P`` and the known

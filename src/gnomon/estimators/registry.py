@@ -25,9 +25,10 @@ _ENTRIES: dict[str, str] = {
     "eskf-r3": "gnomon.estimators.eskf:EskfR3",
     "ecf-spacecraft": "gnomon.estimators.ecf_spacecraft:ExplicitSpacecraftCF",
     "qcf": "gnomon.estimators.qcf:QuaternionCF",
-    "mekf-delayed": "gnomon.estimators.mekf_spacecraft:MagGyroMEKF",
+    "mekf": "gnomon.estimators.mekf:MEKF",
+    "mekf-delayed": "gnomon.estimators.mekf:MEKFDelayed",
     "ekf-spacecraft": "gnomon.estimators.ekf_spacecraft:EKFSpacecraft",
-    "mekf-spacecraft": "gnomon.estimators.mekf_spacecraft:MEKFSpacecraft",
+    "mekf-spacecraft": "gnomon.estimators.mekf:MEKFSpacecraft",
     "robust-ahrs": "gnomon.estimators.robust_ahrs:RobustAHRS",
     "eskf-offline": "gnomon.estimators.eskf_offline:EskfOffline",
     "robust-ahrs-offline": "gnomon.estimators.robust_ahrs_offline:RobustAHRSOffline",
@@ -36,12 +37,12 @@ _ENTRIES: dict[str, str] = {
 
 #: ``default_for``: the filter run on a recording when none is named, the first of these
 #: whose inputs the recording has. A spacecraft recording (a field model in the orbit
-#: frame, ``extra.b_o_nT``): the MEKF with sun sensors, else the magnetometer-gyro MEKF,
-#: else the gyroless EKF with the dynamics; a 9-axis IMU: robust-ahrs (the benchmarks'
-#: best causal filter, docs/benchmarks.md); gyro and accelerometer only: the tilt filter
-#: (no heading: the heading is the gyro's integral from zero).
-DEFAULT_ORDER = ("mekf-spacecraft", "mekf-delayed", "ekf-spacecraft", "robust-ahrs",
-                 "tilt-cf")
+#: frame, ``extra.b_o_nT``) with a gyro: ``mekf``, which uses whatever of sun sensors and
+#: star tracker it also holds; without a gyro, the gyroless EKF with the dynamics; a 9-axis
+#: IMU: robust-ahrs (the benchmarks' best causal filter, docs/benchmarks.md); gyro and
+#: accelerometer only: the tilt filter (no heading: the heading is the gyro's integral
+#: from zero).
+DEFAULT_ORDER = ("mekf", "ekf-spacecraft", "robust-ahrs", "tilt-cf")
 #: the same with ``offline``: eskf-offline, the best offline estimator on BROAD and the
 #: phones together relative to VQF offline (docs/estimators/offline.md), its uncertainty
 #: a model's covariance; then robust-ahrs-offline

@@ -5,7 +5,7 @@ Twins of the readable ``update`` methods of ``gnomon.estimators.ecf_spacecraft``
 by a measured quaternion, ``qcf_*``), and of the sequential Gauss-Newton solver
 ``gnomon.estimators.qcf.gauss_newton_sequence_py`` (``gn_sequence``). The tests compare
 them sample by sample. The shared phases (``predict``, ``unit_pair``, ``vector_error``,
-``pi_correct``) are also used by the delayed-pair MEKF (``gnomon.kernels.mekf_spacecraft``).
+``pi_correct``) are also used by the spacecraft MEKF (``gnomon.kernels.mekf``).
 
 Shape (see ``gnomon.kernels``): ``STATE`` is the record both filters keep, ``q`` (4,)
 ``q_ob`` (orbital from body) and ``bias`` (3,) the gyro-bias estimate (rad/s);

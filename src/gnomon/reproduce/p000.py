@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from gnomon.estimators.ecf_spacecraft import ExplicitSpacecraftCF, initial_q_ob, vector_pairs
-from gnomon.estimators.mekf_spacecraft import MagGyroMEKF
+from gnomon.estimators.mekf import MEKFDelayed
 from gnomon.estimators.qcf import QuaternionCF, measured_quaternions
 from gnomon.metrics import axis_errors_rad, error_angle_rad
 from gnomon.rotation import quat_conj, quat_mul, quat_rotate, rotvec_from_quat
@@ -151,7 +151,7 @@ class _Case:
                                  params.get("sun_substitute", "delayed"))
             return QuaternionCF(**params).run(self.rec, q0=self.q0, measured=meas).q
         self.measured()
-        cls = {"ecf": ExplicitSpacecraftCF, "mekf": MagGyroMEKF}[kind]
+        cls = {"ecf": ExplicitSpacecraftCF, "mekf": MEKFDelayed}[kind]
         return cls(**params).run(self.rec, q0=self.q0).q
 
     def score(self, q):
@@ -197,7 +197,8 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
     (quaternion filter given q_mes), ``qcf`` (Gauss-Newton + filter), ``mekf``; best of
     ``repeats`` (compilation excluded).
     """
-    from gnomon.kernels.mekf_spacecraft import delayed_batch, delayed_coefficients
+    from gnomon.kernels.mekf import coefficients as mekf_coefficients
+    from gnomon.kernels.mekf import mekf_batch
     from gnomon.kernels.spacecraft_cf import (
         ecf_batch,
         ecf_coefficients,
@@ -230,7 +231,7 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
     one = np.array([1.0, 0.0, 0.0, 0.0])
     ecf = ExplicitSpacecraftCF()
     qcf = QuaternionCF(kp_rad_s=0.1, kp_single_rad_s=0.0, ki_single_rad_s2=0.0)
-    mekf = MagGyroMEKF(sigma_mag_rad=0.01, bias_rw_rad_s_rt_s=3e-7, swing_gain=4.0)
+    mekf = MEKFDelayed(sigma_mag_rad=0.01, bias_rw_rad_s_rt_s=3e-7, swing_gain=4.0)
 
     def fresh(f):
         """``f``'s kernel state, reset to the orbital frame."""
@@ -238,7 +239,7 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
         return f.state
 
     c_ecf, c_gn = ecf_coefficients(ecf.params), gauss_newton_coefficients(qcf.params)
-    c_qcf, c_mekf = qcf_coefficients(qcf.params), delayed_coefficients(mekf.params)
+    c_qcf, c_mekf = qcf_coefficients(qcf.params), mekf_coefficients(mekf.params)
     t_ecf = timed(lambda: ecf_batch(c_ecf, fresh(ecf), p["dt"], p["gyro"], p["w_io_o"],
                                     p["mag_b"], p["mag_o"], p["sec_b"], p["sec_o"],
                                     p["sec_valid"], q_out, b_out, flags))
@@ -246,10 +247,13 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
                                      p["sec_valid"], one.copy(), q_mes, ok))
     t_qcf = timed(lambda: qcf_batch(c_qcf, fresh(qcf), p["dt"], p["gyro"], p["w_io_o"], q_mes,
                                     ok, p["mag_b"], p["mag_o"], q_out, b_out, flags))
-    t_mekf = timed(lambda: delayed_batch(c_mekf, fresh(mekf), p["dt"], p["gyro"], p["w_io_o"],
-                                         p["mag_b"], p["mag_o"], p["sec_b"], p["sec_o"],
-                                         p["sec_valid"], p["substituted"], q_out, b_out,
-                                         flags))
+    no_st = (np.full((n, 4), np.nan), np.zeros(n, bool), np.zeros((n, 3)))
+    mekf_out = (np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 0, 0)),
+                np.zeros((n, 5), np.int8), np.empty((n, 2)))
+    t_mekf = timed(lambda: mekf_batch(c_mekf, fresh(mekf), p["dt"], p["gyro"], p["w_io_o"],
+                                      p["mag_b"], p["mag_o"], p["sec_b"], p["sec_o"],
+                                      p["sec_valid"], p["substituted"], *no_st, q_out, b_out,
+                                      *mekf_out))
     return {"samples": n, "ecf": n / t_ecf, "gauss_newton": n / t_gn, "qcf_filter": n / t_qcf,
             "qcf": n / (t_gn + t_qcf), "mekf": n / t_mekf}
 

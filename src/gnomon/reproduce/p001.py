@@ -4,7 +4,8 @@ Paper: "Accuracy of microsatellite attitude estimation by the Kalman method unde
 uncertainty and measurement noise" (spec ``001-microsat-ekf.md``). Scenario: the
 ``seed001`` preset (650 km SSO, LTAN 10:00, wheel-held orbital pointing, one orbit at
 1 s). Filter: :class:`gnomon.estimators.ekf_spacecraft.EKFSpacecraft` (the paper's,
-gyro-less); remedy: :class:`~gnomon.estimators.mekf_spacecraft.MEKFSpacecraft`.
+gyro-less); remedy: :class:`~gnomon.estimators.mekf.MEKFSpacecraft` (``mekf-spacecraft``,
+a preset of ``mekf``).
 
 Experiments, each a campaign (:func:`gnomon.campaign.run_campaign`) of ``seeds`` runs
 with the task :func:`case_task`:
