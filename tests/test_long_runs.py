@@ -33,7 +33,8 @@ def static_imu():
 
 
 @pytest.mark.parametrize("name", [n for n in registry.names(offline=False)
-                                  if set(registry.get(n).needs) <= IMU])
+                                  if registry.get(n).kind == "imu"
+                                  and set(registry.get(n).needs) <= IMU])
 def test_ten_million_static_samples(name, static_imu):
     rec, q_nb = static_imu
     est = registry.create(name).run(rec)

@@ -307,3 +307,23 @@ def test_a_campaign_names_the_new_name_of_a_renamed_parameter():
     with pytest.raises(InputError, match="filter.mekf-spacecraft.sigma0_att_rad"):
         accepts_filter_key("filter.mekf-spacecraft.p0_att_rad")
     assert accepts_filter_key("filter.mekf.estimate_mag_bias")
+
+
+def test_any_attitude_sensor_will_do_the_tracker_starts_the_filter():
+    """Gyro and star tracker only (no magnetometer, no sun): ``mekf`` runs, starts from the
+    tracker's first attitude (not the orbital frame, 10° away here) and holds it; with no
+    attitude sensor at all the error names what each would need."""
+    rec = spacecraft(n=600, st_every=1, st_noise_rad=10 * ARCSEC, seed=5)
+    keep = {k: v for k, v in rec.extra.items() if k not in ("b_o_nT", "s_o")}
+    bare = dataclasses.replace(rec, mag=None, sun=None, sun_valid=None, extra=keep)
+    est = MEKF().run(bare)
+    err = np.degrees(error_angle_rad(rec.q_true, est.q)) * 3600
+    assert err[0] < 60 and np.sqrt(np.mean(err[100:] ** 2)) < 15 and err[100:].max() < 60
+    assert est.signals["mag_unusable"][1:].all()  # row 0 starts the filter: no step
+    assert registry.default_for(bare)[0] == "mekf"
+    none = dataclasses.replace(bare, extra={k: v for k, v in keep.items()
+                                            if not k.startswith("st_")})
+    with pytest.raises(InputError, match="star tracker: extra.st_q_ib and extra.q_io"):
+        MEKF().run(none)
+    with pytest.raises(InputError, match="mag"):
+        registry.create("mekf-spacecraft").run(bare)

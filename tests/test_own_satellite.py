@@ -50,7 +50,7 @@ def test_gnomon_estimate_on_the_tutorial_scenario(tmp_path, capsys):
     assert main(["estimate", str(rec_path), "--plot", str(plot), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["filter"] == "mekf"  # with the star tracker
-    # 20 min from a 3.7 deg initial error: the full orbit gives 0.016 deg RMS (tutorial)
+    # 20 min, started from the star tracker: the full orbit gives 0.013 deg RMS (tutorial)
     assert 0.0 < out["errors"]["total_deg"] < 0.1
     assert plot.stat().st_size > 10_000
 

@@ -45,6 +45,13 @@ def make_recording(needs, seed, n, gap, zero_rows, gyro_scale, reference="ENU"):
     return Recording(**kw, extra=extra, frames={"reference": reference, "body": "sensor"})
 
 
+def _inputs(cls):
+    """What to record for ``cls``: its ``needs``, and for a filter that takes any of several
+    attitude sensors (``SENSOR_INPUTS``, the spacecraft ``mekf``) the magnetometer."""
+    extra = getattr(cls, "SENSOR_INPUTS", {}).get("magnetometer", ())
+    return tuple(cls.needs) + tuple(n for n in extra if n not in cls.needs)
+
+
 def names():
     return registry.names()
 
@@ -57,7 +64,7 @@ def names():
        gyro_scale=st.sampled_from([0.0, 0.5, 35.0]))
 def test_outputs_finite_unit_quaternions(name, seed, n, gap, zero_rows, gyro_scale):
     cls = registry.get(name)
-    rec = make_recording(cls.needs, seed, n, gap, zero_rows, gyro_scale,
+    rec = make_recording(_inputs(cls), seed, n, gap, zero_rows, gyro_scale,
                          cls.reference_frame or "ENU")
     est = cls().run(rec)
     assert est.q.shape == (n, 4)
@@ -77,7 +84,7 @@ def test_split_run_resumes_exactly(name):
     cls = registry.get(name)
     if not cls.state_fields:
         pytest.fail(f"{name} declares no state_fields: its state cannot be saved")
-    rec = make_recording(cls.needs, 7, 400, 0.0, [], 0.5, cls.reference_frame or "ENU")
+    rec = make_recording(_inputs(cls), 7, 400, 0.0, [], 0.5, cls.reference_frame or "ENU")
     whole = cls().run(rec).q
     first = cls()
     a = first.run(rec.slice(0, 157)).q

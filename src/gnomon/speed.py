@@ -61,7 +61,7 @@ def _methods(rec, runs: int):
     methods = {}
     for name in registry.names():
         cls = registry.get(name)
-        if set(cls.needs) <= _IMU_NEEDS:
+        if cls.kind == "imu" and set(cls.needs) <= _IMU_NEEDS:
             methods[name] = (lambda cls=cls: cls().run(rec), len(rec))
 
     # batch over runs: R filters, each fed the same motion with its own noise realisation

@@ -74,9 +74,15 @@ def _filters_for(rec, filters):
     if filters is not None:
         return list(filters)
     # causal filters by default (an offline one, --filter NAME-offline, sees the whole run)
-    return [name for name in registry.names(offline=False)
-            if all((rec.extra.get(k[6:]) is not None) if k.startswith("extra.")
-                   else getattr(rec, k, None) is not None for k in registry.get(name).needs)]
+    # whose inputs the recording has (their own check: sensors, rates, reference frame)
+    names = []
+    for name in registry.names(offline=False):
+        try:
+            registry.create(name).check_inputs(rec)
+        except InputError:
+            continue
+        names.append(name)
+    return names
 
 
 def _filter_params(params: dict, name: str) -> dict:

@@ -3,9 +3,10 @@
 Lefferts, Markley & Shuster's MEKF ("Kalman filtering for spacecraft attitude
 estimation", JGCD 5(5), 1982; Markley & Crassidis 2014, ch. 6). It estimates ``q_ob``
 (orbital from body, the recordings' ``q_true``) from the gyro ``ω_ib_b`` and whatever
-the recording holds of: the magnetometer (with the field model in o), the sun sensors
-(coarse or fine: a unit vector with ``sun_valid``), the star tracker (``extra.st_q_ib``
-with ``st_valid`` and ``st_boresight_b``, turned into ``q̂_ob`` with ``extra.q_io``).
+the recording holds of (at least one): the magnetometer (with the field model in o), the
+sun sensors (coarse or fine: a unit vector with ``sun_valid``), the star tracker
+(``extra.st_q_ib`` with ``st_valid`` and ``st_boresight_b``, turned into ``q̂_ob`` with
+``extra.q_io``). Without a gyro: ``ekf-spacecraft`` (the dynamics model).
 
 Error state (``q = q̂ ⊗ exp(θ)``, θ in body axes)::
 
@@ -67,12 +68,13 @@ twin in numpy (tested sample by sample); ``update`` streams one raw sample::
            sun_ref_o=None, w_io_o_rad_s=None, st_q_ob=None, st_boresight_b=None)
            -> q_ob (4,)
 
-``dt_s`` s since the previous sample (the first call starts the filter: TRIAD of that
-sample's vectors, no step); ``gyro_rad_s`` (3,) ``ω_ib_b`` rad/s; ``mag_b`` (3,) the
-measured field in b (nT when the bias is estimated, else any unit) and ``mag_ref_o`` (3,)
-the field model in o; ``sun_b``/``sun_ref_o`` (3,) the sun direction in b and its model
-in o (None: none, e.g. eclipse); ``w_io_o_rad_s`` (3,) the orbital frame's rate (default
-``[0, −n, 0]``); ``st_q_ob`` (4,) a star-tracker attitude already in the orbital frame
+``dt_s`` s since the previous sample (the first call starts the filter: from the star
+tracker's attitude, else TRIAD of that sample's vectors; no step); ``gyro_rad_s`` (3,)
+``ω_ib_b`` rad/s; ``mag_b`` (3,) the measured field in b (nT when the bias is estimated,
+else any unit) and ``mag_ref_o`` (3,) the field model in o; ``sun_b``/``sun_ref_o`` (3,)
+the sun direction in b and its model in o (None: none, e.g. eclipse); ``w_io_o_rad_s``
+(3,) the orbital frame's rate (default ``[0, −n, 0]``); ``st_q_ob`` (4,) a star-tracker
+attitude already in the orbital frame
 (``q_oi ⊗ q̂_ib``) and ``st_boresight_b`` (3,) its boresight in b.
 """
 
@@ -243,8 +245,34 @@ class MEKF(VectorPairFilter):
                "sun sensors, star tracker; gyro bias, optional magnetometer bias and gyro "
                "scale factors")
     paper = "seeds 000, 001 (remedy: Lefferts, Markley & Shuster 1982)"
-    needs = ("gyro", "mag", "extra.b_o_nT")
+    #: the gyro, and at least one of the attitude sensors (``check_inputs``)
+    needs = ("gyro",)
     Params = MEKFParams
+    #: each attitude sensor and what it needs in the recording
+    SENSOR_INPUTS = {"magnetometer": ("mag", "extra.b_o_nT"), "sun sensor": ("sun", "extra.s_o"),
+                     "star tracker": ("extra.st_q_ib", "extra.q_io")}
+
+    def check_inputs(self, rec: Recording) -> None:
+        """Besides ``needs``: at least one attitude sensor with its reference, else an
+        ``InputError`` naming what each would need."""
+        super().check_inputs(rec)
+        if not self._sensors(rec):
+            need = "; ".join(f"{k}: {' and '.join(v)}" for k, v in self.SENSOR_INPUTS.items())
+            raise InputError(f"filter '{self.name}' needs an attitude sensor besides the gyro "
+                             f"({need}); the recording has none",
+                             field="mag", file=rec.source or None)
+
+    def _sensors(self, rec: Recording) -> list[str]:
+        """The attitude sensors of ``rec`` this filter uses."""
+        def has(name):
+            return (rec.extra.get(name[6:]) is not None if name.startswith("extra.")
+                    else getattr(rec, name) is not None)
+        used = [k for k, v in self.SENSOR_INPUTS.items() if all(has(x) for x in v)]
+        if not self.params.use_sun:
+            used = [k for k in used if k != "sun sensor"]
+        if not self.params.use_star_tracker:
+            used = [k for k in used if k != "star tracker"]
+        return used
 
     def reset(self, q0_ob=None) -> None:
         self.history = []  # past estimates (the delayed pair's weight, streaming)
@@ -298,10 +326,12 @@ class MEKF(VectorPairFilter):
         x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
                               w_io_o_rad_s)
         valid = bool(x["sec_valid"]) and self.params.use_sun
-        if fresh:  # start: TRIAD of this sample, no step
+        if fresh:  # start: the tracker's attitude, else TRIAD of this sample; no step
             one = {k: np.asarray(v)[None] for k, v in x.items()}
             one["sec_valid"] = np.array([valid])
-            self._start(one, None)
+            st_ok = (st_q_ob is not None and self.params.use_star_tracker
+                     and bool(np.all(np.isfinite(st_q_ob))))
+            self._start(one, np.asarray(st_q_ob, float) if st_ok else None)
             dt_s = 0.0
         return self.step(dt_s, x["gyro"], x["w_io_o"], x["mag_b"], x["mag_o"], x["sec_b"],
                          x["sec_o"], valid, x["substituted"], st_q_ob, st_boresight_b)
@@ -494,19 +524,27 @@ class MEKF(VectorPairFilter):
 
     # ---------------------------------------------------------------- batch
     def run(self, rec: Recording, q0=None, keep_covariance: bool = True) -> Estimate:
-        """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
-        sample with the sun and the field, else identity). ``keep_covariance`` False: no
+        """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: the first star-tracker
+        attitude, else TRIAD of the first sample with the sun and the field, else the
+        identity). A recording without a magnetometer runs on its other sensors (every
+        sample flagged ``mag_unusable``). ``keep_covariance`` False: no
         ``att_std_rad``/``p_diag`` signals (saves ``8 n²`` bytes per sample while running)."""
         from gnomon.kernels.mekf import coefficients, mekf_batch
 
         self.check_inputs(rec)
         p = self.params
-        if rec.mag_unit != "nT":  # the bias, the magnitude row and mag_noise_nT are in nT
+        if "magnetometer" not in self._sensors(rec):  # no field: every sample a dropout
+            zero = np.zeros((len(rec), 3))
+            rec = dataclasses.replace(rec, mag=zero, mag_unit="nT",
+                                      extra={**rec.extra, "b_o_nT": zero})
+        elif rec.mag_unit != "nT":  # the bias, the magnitude row and mag_noise_nT are in nT
             rec = dataclasses.replace(rec, mag=rec.mag_tesla * 1e9, mag_unit="nT")
         pairs = self.pairs(rec)
         if not p.use_sun:
             pairs["sec_valid"] = np.zeros(len(rec), bool)
         st = star_tracker_inputs(rec, p.use_star_tracker)
+        if q0 is None and self.state is None and st["st_valid"].any():
+            q0 = st["st_q"][int(np.argmax(st["st_valid"]))]  # the first tracker attitude
         self._start(pairs, q0)
         n, k = len(rec), self.n_states
         q_out, b_out, flags = np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 5), np.int8)
@@ -539,6 +577,7 @@ class MEKFDelayed(MEKF):
     summary = ("Preset of mekf for seed 000: mag (+ sun where valid, else the delayed pair "
                "weighted by the swing) + gyro with bias")
     paper = "seed 000 (remedy: Lefferts, Markley & Shuster 1982)"
+    needs = ("gyro", "mag", "extra.b_o_nT")
     Params = MEKFDelayedParams
 
 
