@@ -11,8 +11,9 @@ sun-synchronous with eclipses), one orbit (6000 s; ``--quick``: 3000 s) at 1 s, 
 * (b) bias (200, -150, 100) nT, ``mekf`` defaults;
 * (c) the same bias, ``mekf`` with ``estimate_mag_bias=True`` (other parameters default);
 * (d) no bias, ``estimate_mag_bias=True``: what estimating the bias costs by itself;
-* and, for a look at the tuning, (c) again with other ``sigma0_mag_bias_nT`` /
-  ``mag_bias_rw_nT_rt_s`` (``T1_TUNINGS``).
+* and, for a look at the tuning, (c) again with the field's direction only
+  (``sigma_mag_norm_nT=0``: no magnitude row), other ``sigma_mag_norm_nT``,
+  ``sigma0_mag_bias_nT`` and ``mag_bias_rw_nT_rt_s`` (``T1_TUNINGS``).
 
 Measured per run: the RMS of the attitude error angle after ``T1_SETTLE_S`` (the first
 600 s excluded), the RMS after ``T1_LATE_S`` = 3600 s (past the first eclipse, once the
