@@ -371,7 +371,8 @@ class MEKF(VectorPairFilter):
         else:
             w = np.zeros(3)
             self.flags["coast"] = True
-        P[:] = self._transition(w, dt) @ P @ self._transition(w, dt).T + self._q_noise() * dt
+        Phi = self._transition(w, dt)
+        P[:] = Phi @ P @ Phi.T + self._q_noise() * dt
         if dt > p.max_dt_s:
             self.flags.update(gap=True, coast=True)
             return

@@ -155,11 +155,9 @@ def rate(c, s, gx, gy, gz):
 
 @njit(inline="always", error_model="numpy")
 def predict_attitude(q, wx, wy, wz, iox, ioy, ioz, dt):
-    """``q <- normalise(q ⊗ exp((ω̂_ib − R_bo ω_io) dt))``; returns ``ω̂_ob`` (rad/s)."""
+    """``q <- normalise(q ⊗ exp((ω̂_ib − R_bo ω_io) dt))``."""
     tx, ty, tz = rotate_inv(q[0], q[1], q[2], q[3], iox, ioy, ioz)
-    ox, oy, oz = wx - tx, wy - ty, wz - tz
-    turn(q, ox * dt, oy * dt, oz * dt)
-    return ox, oy, oz
+    turn(q, (wx - tx) * dt, (wy - ty) * dt, (wz - tz) * dt)
 
 
 @njit(inline="always", error_model="numpy")
