@@ -139,7 +139,7 @@ class MEKFParams(Params):
     gyro_sample: str = param("previous", "", "which gyro sample propagates over t[k-1]..t[k]: "
                              "previous (held) | current")
     transition: str = param("exponential", "", "attitude block of the transition matrix: "
-                            "exponential | first-order")
+                            "exponential | first-order (for turns up to 0.1 rad a sample)")
     relinearise: bool = param(False, "", "linearise each vector about the attitude already "
                               "corrected by the ones before it in the sample (false: the "
                               "joint update)")
@@ -394,7 +394,7 @@ class MEKF(VectorPairFilter):
     def _transition(self, w, dt):
         p, n = self.params, self.n_states
         Phi = np.eye(n)
-        if p.transition == "exponential":
+        if p.transition == "exponential" or np.dot(w, w) * dt * dt > 0.01:  # > 0.1 rad
             Phi[:3, :3] = dcm_from_quat(quat_from_rotvec(-w * dt))
         else:
             Phi[:3, :3] -= skew(w) * dt

@@ -163,10 +163,12 @@ def predict_attitude(q, wx, wy, wz, iox, ioy, ioz, dt):
 @njit(inline="always", error_model="numpy")
 def propagate_covariance(c, P, wx, wy, wz, dt, work):
     """``P <- Φ P Φᵀ + Q dt``. Φ is the identity but for the attitude rows
-    ``[A, −I dt, 0, −diag(ω̂) dt]``, ``A = exp(−[ω̂×] dt)`` or ``I − [ω̂×] dt``;
+    ``[A, −I dt, 0, −diag(ω̂) dt]``, ``A = exp(−[ω̂×] dt)`` or ``I − [ω̂×] dt`` (the
+    latter only for turns ``|ω̂| dt`` up to 0.1 rad, where it holds);
     ``Q = diag(arw², bias_rw², mag_bias_rw², scale_rw²)``."""
     A, PP, n, isc = work.A, work.PP, c.n, c.i_scale
-    if c.exponential:
+    # the first-order form only holds for a small turn: beyond 0.1 rad, the exponential
+    if c.exponential or (wx * wx + wy * wy + wz * wz) * dt * dt > 0.01:
         ew, ex, ey, ez = exp(-wx * dt, -wy * dt, -wz * dt)
         r = dcm(ew, ex, ey, ez)  # exp(−[ω×] dt) = R(exp(−ω dt))
         for a in range(3):
