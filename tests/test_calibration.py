@@ -14,7 +14,6 @@ from gnomon.calibration import (
     COVERAGE_CELLS,
     MIN_COVERAGE,
     MagCalibration,
-    _ellipsoid_fit,
     apply_mag_calibration,
     calibrate_mag,
     coverage_cells,
@@ -25,6 +24,7 @@ from gnomon.calibration import (
     save_mag_calibration,
     sphere_coverage,
 )
+from gnomon.calibration.fit import _ellipsoid_fit
 from gnomon.cli import main
 from gnomon.datasets import bundled
 from gnomon.errors import InputError
@@ -79,7 +79,7 @@ def test_coverage_cells_have_equal_area_and_count():
     np.testing.assert_allclose(zone_area / counts, 4 * np.pi / COVERAGE_CELLS, rtol=1e-9)
     rng = np.random.default_rng(0)
     d = directions(rng, 1_000_000)
-    from gnomon.calibration import _cell_index
+    from gnomon.calibration.coverage import _cell_index
 
     hits = np.bincount(_cell_index(d), minlength=COVERAGE_CELLS)
     assert hits.size == COVERAGE_CELLS

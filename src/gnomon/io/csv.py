@@ -79,6 +79,8 @@ DEFAULT_COLUMNS = ("t",) + SENSOR_GROUPS["gyro"] + SENSOR_GROUPS["accel"] + \
 #: gyro rates above this (99th percentile of |w|, rad/s) are implausible as rad/s
 GYRO_RAD_S_PLAUSIBLE_MAX = 35.0
 
+_MULTI_RATE = ("Multi-rate CSV: an empty cell means no sample of that sensor in that row; each "
+               "sensor's time stamps are the times of the rows where its cells are filled.")
 _TRUE = {"1", "true", "t", "yes", "y"}
 _FALSE = {"0", "false", "f", "no", "n"}
 
@@ -194,6 +196,43 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
     Returns a :class:`Recording` in SI units (``t`` s, ``gyro`` rad/s,
     ``accel`` m/s²; ``mag`` in ``mag_unit``).
     """
+    columns, name = _options(columns, gyro_unit, accel_unit, mag_unit, time_unit, delimiter)
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", file=str(path))
+    table = _Table(path, delimiter)
+    has_mag, has_truth, has_mask = _present(table, name, columns)
+    t = _time(table, name, time_unit)
+    sensors = ("gyro", "accel", "mag") if has_mag else ("gyro", "accel")
+    rows, multi_rate = _sensor_rows(table, name, sensors)
+    meta = {"format": "csv", "multi_rate": True, "assumed": [_MULTI_RATE]} if multi_rate \
+        else {}
+    gyro = _group(table, name, "gyro", rows)
+    if gyro_unit == "deg/s":
+        gyro = np.deg2rad(gyro)
+    accel = _group(table, name, "accel", rows) * ACCEL_UNITS[accel_unit]
+    mag = _group(table, name, "mag", rows) if has_mag else None
+    own_t = {}
+    if multi_rate:
+        t, own_t, mag = _own_times(table, name, t, rows, mag, meta["assumed"])
+        _check_gyro_rows(table, name, rows["gyro"], has_truth, has_mask)
+    q_true = _truth(table, name, rows["gyro"]) if has_truth else None
+    mask = _mask(table, name, rows["gyro"], multi_rate) if has_mask else None
+    _plausibility(path, gyro, gyro_unit, accel, accel_unit)
+    try:
+        return Recording(
+            t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true, mask=mask,
+            meta=meta, **own_t,
+            frames=frames if frames is not None else {"reference": "ENU", "body": "sensor"},
+            source=path.stem if source is None else str(source),
+        )
+    except InputError as err:
+        raise _named(table, name, rows, multi_rate, err) from None
+
+
+def _options(columns: dict | None, gyro_unit: str, accel_unit: str, mag_unit: str,
+             time_unit: str, delimiter: str) -> tuple[dict, dict]:
+    """The options checked: ``(columns, gnomon column name -> the file's)``."""
     _unit("time_unit", time_unit, tuple(TIME_UNITS))
     _unit("gyro_unit", gyro_unit, GYRO_UNITS)
     _unit("accel_unit", accel_unit, tuple(ACCEL_UNITS))
@@ -205,131 +244,138 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
     if unknown:
         raise InputError(f"unknown gnomon column name(s) {unknown}; known: "
                          f"{', '.join(DEFAULT_COLUMNS)}", field="columns")
-    name = {k: str(columns.get(k, k)) for k in DEFAULT_COLUMNS}  # gnomon -> file column
+    return columns, {k: str(columns.get(k, k)) for k in DEFAULT_COLUMNS}
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("no such file", file=str(path))
-    table = _Table(path, delimiter)
-    have = set(table.header)
 
-    def require(keys, why):
-        for k in keys:
-            if name[k] not in have:
-                hint = ""
-                if name[k] in (table.comment_before_header or ()):
-                    hint = " (the column names seem to be in a '#' comment line; remove the '#')"
-                raise InputError(
-                    f"missing column{why}; header (line {table.header_line}) has: "
-                    f"{', '.join(table.header)}{hint}", file=str(path), field=name[k])
+def _require(table: _Table, name: dict, keys, why: str) -> None:
+    """Raise naming the first of the columns ``keys`` missing from the header."""
+    for k in keys:
+        if name[k] not in table.header:
+            hint = ""
+            if name[k] in (table.comment_before_header or ()):
+                hint = " (the column names seem to be in a '#' comment line; remove the '#')"
+            raise InputError(
+                f"missing column{why}; header (line {table.header_line}) has: "
+                f"{', '.join(table.header)}{hint}", file=str(table.path), field=name[k])
+
+
+def _present(table: _Table, name: dict, columns: dict) -> tuple[bool, bool, bool]:
+    """Time, gyro and accelerometer required; whether the file has the magnetometer, the
+    truth and the mask (each group all or none; required when named in ``columns``)."""
 
     def optional_group(keys):
-        present = [name[k] in have for k in keys]
+        present = [name[k] in table.header for k in keys]
         if any(k in columns for k in keys):  # asked for explicitly
-            require(keys, " (given in 'columns')")
+            _require(table, name, keys, " (given in 'columns')")
         elif any(present) and not all(present):
-            require(keys, f" (the group {', '.join(name[k] for k in keys)} is incomplete)")
-        return all(name[k] in have for k in keys)
+            _require(table, name, keys,
+                     f" (the group {', '.join(name[k] for k in keys)} is incomplete)")
+        return all(present)
 
-    require(("t",) + SENSOR_GROUPS["gyro"] + SENSOR_GROUPS["accel"], "")
-    has_mag = optional_group(SENSOR_GROUPS["mag"])
-    has_truth = optional_group(TRUTH_COLUMNS)
-    has_mask = optional_group(("mask",))
+    _require(table, name, ("t",) + SENSOR_GROUPS["gyro"] + SENSOR_GROUPS["accel"], "")
+    return (optional_group(SENSOR_GROUPS["mag"]), optional_group(TRUTH_COLUMNS),
+            optional_group(("mask",)))
 
+
+def _time(table: _Table, name: dict, time_unit: str) -> np.ndarray:
+    """The time column in s; it must increase strictly."""
     t_raw = table.numbers(name["t"])
     dt = np.diff(t_raw)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0)) + 1
         raise table.error(f"time stamps must increase strictly: {float(t_raw[i])!r} after "
                           f"{float(t_raw[i - 1])!r}", name["t"], i)
-    t = t_raw * TIME_UNITS[time_unit]
+    return t_raw * TIME_UNITS[time_unit]
 
-    sensors = ("gyro", "accel", "mag") if has_mag else ("gyro", "accel")
+
+def _sensor_rows(table: _Table, name: dict, sensors: tuple) -> tuple[dict, bool]:
+    """sensor -> the rows holding its samples (``slice(None)``: all), and whether the file
+    is multi-rate (a sensor's three cells all empty in some row)."""
     empty = {k: np.column_stack([table.strings(name[c]) == "" for c in SENSOR_GROUPS[k]])
              for k in sensors}
-    multi_rate = any(e.all(axis=1).any() for e in empty.values())
-    rows = {k: slice(None) for k in sensors}  # the rows holding each sensor's samples
-    meta = {}
-    if multi_rate:
-        # an empty group of cells means no sample of that sensor in this row
-        for k in sensors:
-            partial = empty[k].any(axis=1) & ~empty[k].all(axis=1)
-            if partial.any():
-                i = int(np.argmax(partial))
-                col = name[SENSOR_GROUPS[k][int(np.argmax(empty[k][i]))]]
-                raise table.error("empty cell (the other axes of this sensor have a value; "
-                                  "leave all three empty for no sample)", col, i)
-            rows[k] = np.flatnonzero(~empty[k].all(axis=1))
-        if rows["gyro"].size < 2:
-            raise table.error(f"{rows['gyro'].size} row(s) with a gyro sample; at least 2 "
-                              "needed", name["gyr_x"], None)
-        meta = {"format": "csv", "multi_rate": True, "assumed": [
-            "Multi-rate CSV: an empty cell means no sample of that sensor in that row; each "
-            "sensor's time stamps are the times of the rows where its cells are filled."]}
+    rows = {k: slice(None) for k in sensors}
+    if not any(e.all(axis=1).any() for e in empty.values()):
+        return rows, False
+    # an empty group of cells means no sample of that sensor in this row
+    for k in sensors:
+        partial = empty[k].any(axis=1) & ~empty[k].all(axis=1)
+        if partial.any():
+            i = int(np.argmax(partial))
+            col = name[SENSOR_GROUPS[k][int(np.argmax(empty[k][i]))]]
+            raise table.error("empty cell (the other axes of this sensor have a value; "
+                              "leave all three empty for no sample)", col, i)
+        rows[k] = np.flatnonzero(~empty[k].all(axis=1))
+    if rows["gyro"].size < 2:
+        raise table.error(f"{rows['gyro'].size} row(s) with a gyro sample; at least 2 "
+                          "needed", name["gyr_x"], None)
+    return rows, True
 
-    def group(key):
-        r = rows[key]
-        return np.column_stack([table.numbers(name[k], rows=r) for k in SENSOR_GROUPS[key]])
 
-    gyro = group("gyro")
-    if gyro_unit == "deg/s":
-        gyro = np.deg2rad(gyro)
-    accel = group("accel") * ACCEL_UNITS[accel_unit]
-    mag = group("mag") if has_mag else None
-    own_t = {}
-    if multi_rate:
-        t_rows = t
-        t = t_rows[rows["gyro"]]
-        for k in ("accel", "mag"):
-            if k in sensors:
-                own_t[f"{k}_t"] = t_rows[rows[k]]
-        if has_mag and rows["mag"].size == 0:
-            mag, own_t["mag_t"] = None, None
-            meta["assumed"].append("The magnetometer columns are empty: no magnetometer.")
-        if rows["accel"].size == 0:
-            raise table.error("no row with an accelerometer sample", name["acc_x"], None)
-        others = np.setdiff1d(np.arange(len(table.rows)), rows["gyro"])
-        for key in (TRUTH_COLUMNS if has_truth else ()) + (("mask",) if has_mask else ()):
-            filled = table.strings(name[key])[others] != ""
-            if filled.any():
-                i = int(others[np.argmax(filled)])
-                raise table.error("a truth or mask value in a row without a gyro sample "
-                                  "(they belong to the gyro's time stamps)", name[key], i)
-    q_true = None
-    if has_truth:
-        q_true = np.column_stack([table.numbers(name[k], allow_missing=True,
-                                                rows=rows["gyro"]) for k in TRUTH_COLUMNS])
-        q_true[~np.isfinite(q_true).all(axis=1)] = np.nan  # missing sample: whole row NaN
-    mask = None
-    if has_mask:
-        s = np.char.lower(table.strings(name["mask"])[rows["gyro"]])
-        is_true, is_false = np.isin(s, list(_TRUE)), np.isin(s, list(_FALSE))
-        if not np.all(is_true | is_false):
-            j = int(np.argmax(~(is_true | is_false)))
-            i = int(rows["gyro"][j]) if multi_rate else j
-            raise table.error(f"expected 1/0 or true/false, got {str(s[j])!r}", name["mask"], i)
-        mask = is_true
+def _group(table: _Table, name: dict, key: str, rows: dict) -> np.ndarray:
+    """The three columns of sensor ``key`` in its rows, (N, 3) float."""
+    r = rows[key]
+    return np.column_stack([table.numbers(name[k], rows=r) for k in SENSOR_GROUPS[key]])
 
-    _plausibility(path, gyro, gyro_unit, accel, accel_unit)
+
+def _own_times(table: _Table, name: dict, t_rows: np.ndarray, rows: dict, mag, assumed: list
+               ) -> tuple[np.ndarray, dict, np.ndarray | None]:
+    """Multi-rate: ``(the gyro's time stamps, {"accel_t", "mag_t"}, mag)`` from the times
+    of the rows holding each sensor's samples; no magnetometer when it has none."""
+    t = t_rows[rows["gyro"]]
+    own_t = {f"{k}_t": t_rows[rows[k]] for k in ("accel", "mag") if k in rows}
+    if "mag" in rows and rows["mag"].size == 0:
+        mag, own_t["mag_t"] = None, None
+        assumed.append("The magnetometer columns are empty: no magnetometer.")
+    if rows["accel"].size == 0:
+        raise table.error("no row with an accelerometer sample", name["acc_x"], None)
+    return t, own_t, mag
+
+
+def _check_gyro_rows(table: _Table, name: dict, gyro_rows: np.ndarray, has_truth: bool,
+                     has_mask: bool) -> None:
+    """Multi-rate: truth and mask cells only in rows with a gyro sample."""
+    others = np.setdiff1d(np.arange(len(table.rows)), gyro_rows)
+    for key in (TRUTH_COLUMNS if has_truth else ()) + (("mask",) if has_mask else ()):
+        filled = table.strings(name[key])[others] != ""
+        if filled.any():
+            i = int(others[np.argmax(filled)])
+            raise table.error("a truth or mask value in a row without a gyro sample "
+                              "(they belong to the gyro's time stamps)", name[key], i)
+
+
+def _truth(table: _Table, name: dict, gyro_rows) -> np.ndarray:
+    """``q_w..q_z`` on the gyro rows; a row with a missing cell is all NaN."""
+    q_true = np.column_stack([table.numbers(name[k], allow_missing=True, rows=gyro_rows)
+                              for k in TRUTH_COLUMNS])
+    q_true[~np.isfinite(q_true).all(axis=1)] = np.nan  # missing sample: whole row NaN
+    return q_true
+
+
+def _mask(table: _Table, name: dict, gyro_rows, multi_rate: bool) -> np.ndarray:
+    """The mask column on the gyro rows as bool (``1/0``, ``true/false``, ...)."""
+    s = np.char.lower(table.strings(name["mask"])[gyro_rows])
+    is_true, is_false = np.isin(s, list(_TRUE)), np.isin(s, list(_FALSE))
+    if not np.all(is_true | is_false):
+        j = int(np.argmax(~(is_true | is_false)))
+        i = int(gyro_rows[j]) if multi_rate else j
+        raise table.error(f"expected 1/0 or true/false, got {str(s[j])!r}", name["mask"], i)
+    return is_true
+
+
+def _named(table: _Table, name: dict, rows: dict, multi_rate: bool, err: InputError
+           ) -> InputError:
+    """The Recording's InputError named as the file calls it: column and table row."""
     field_to_column = {"t": name["t"], "gyro": ",".join(name[k] for k in SENSOR_GROUPS["gyro"]),
                        "accel": ",".join(name[k] for k in SENSOR_GROUPS["accel"]),
                        "mag": ",".join(name[k] for k in SENSOR_GROUPS["mag"]),
                        "q_true": ",".join(name[k] for k in TRUTH_COLUMNS),
                        "mask": name["mask"], "accel_t": name["t"], "mag_t": name["t"]}
-    try:
-        return Recording(
-            t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true, mask=mask,
-            meta=meta, **own_t,
-            frames=frames if frames is not None else {"reference": "ENU", "body": "sensor"},
-            source=path.stem if source is None else str(source),
-        )
-    except InputError as err:
-        column = field_to_column.get(err.field, err.field)
-        row = err.row
-        if multi_rate and row is not None:  # the sensor's own index -> its table row
-            sensor = str(err.field).removesuffix("_t")
-            row = int(rows[sensor if sensor in rows else "gyro"][row])
-        raise table.error(err.message, column, row) from None
+    column = field_to_column.get(err.field, err.field)
+    row = err.row
+    if multi_rate and row is not None:  # the sensor's own index -> its table row
+        sensor = str(err.field).removesuffix("_t")
+        row = int(rows[sensor if sensor in rows else "gyro"][row])
+    return table.error(err.message, column, row)
 
 
 def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarray,
@@ -349,3 +395,4 @@ def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarra
                 f"{path}: median accelerometer magnitude {med:.3f} m/s^2 is near 1; are the "
                 f"accelerometer columns in g? Then pass accel_unit='g'.", UnitWarning,
                 stacklevel=3)
+

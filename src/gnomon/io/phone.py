@@ -233,6 +233,38 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
             raise InputError(f"expected calibrated or raw, got {value!r}", file=str(path),
                              field=name)
     assumed = [_AXES]
+    props = _ini(path / ("record.properties" if platform == "android" else "description.txt"))
+    offset = _tyrex_offset(path, platform, align_time, props, assumed)
+    t, w, t_a, acc = _tyrex_imu(path, platform, gyro, offset, assumed)
+    mag_file = "magnetometer-calibrated.txt" if mag == "calibrated" else "magnetometer.txt"
+    t_m, m, constant_norm = _tyrex_mag(path, platform, mag_file, offset, assumed)
+    q_onboard, onboard_desc = _tyrex_onboard(path, platform, offset, t, assumed) if onboard \
+        else (None, None)
+    device = {k: props[k] for k in ("Manufacturer", "Model", "OSVersion") if k in props}
+    meta = {"format": "tyrex", "platform": platform, "assumed": assumed, "device": device,
+            "gyro": gyro if platform == "android" else "raw", "mag": mag,
+            "onboard": onboard_desc, "time_offset_s": offset,
+            "mag_constant_norm_fraction": constant_norm,
+            "onboard_heading_reference": None if q_onboard is None else _TYREX_NORTH[platform],
+            "onboard_gravity_deg": onboard_gravity_deg(q_onboard, t, t_a, acc)}
+    q_true = mask = None
+    ref_file = _tyrex_reference(path, reference, align_time)
+    if ref_file is not None:
+        from gnomon.io.tyrex import reference_on
+
+        q_true, mask, said, meta["truth"] = reference_on(t, ref_file, path.name)
+        assumed.extend(said)
+    names = {"t": "gyroscope", "gyro": "gyroscope", "accel": "accelerometer.txt",
+             "accel_t": "accelerometer.txt", "mag": mag_file, "mag_t": mag_file}
+    return build(path, names, t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m,
+                 mag_unit="uT", q_onboard=q_onboard, q_true=q_true, mask=mask,
+                 frames=_FRAMES, source=f"{path.name} (tyrex {platform})", meta=meta)
+
+
+def _tyrex_offset(path: Path, platform: str, align_time: bool, props: dict, assumed: list
+                  ) -> float:
+    """The time shift (s) onto the data set's motion-capture clock: ``timeAlignment.txt``,
+    minus iOS's ``BootTime``; 0 without ``align_time``."""
     offset = 0.0
     if align_time:
         a = path / "timeAlignment.txt"
@@ -240,7 +272,6 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
             offset = float(_text_table(a, 1).reshape(-1)[0])
             assumed.append(f"Time shifted by timeAlignment.txt ({offset:+.3f} s) onto the "
                            "data set's motion-capture clock.")
-    props = _ini(path / ("record.properties" if platform == "android" else "description.txt"))
     if platform == "ios" and align_time:
         if "BootTime" not in props:
             raise InputError("no BootTime in description.txt (needed to align time; "
@@ -252,85 +283,91 @@ def read_tyrex(path: str | os.PathLike, *, gyro: str = "calibrated", mag: str = 
             raise InputError(f"BootTime is not a number: {props['BootTime']!r}",
                              file=str(path / "description.txt"), field="BootTime") from None
         assumed.append(f"iOS time: t - BootTime ({props['BootTime']} s) + alignment.")
+    return offset
 
-    def load(name: str, cols: int):
-        f = path / name
-        a = _text_table(f, cols + 1)
-        return series(f, name, a[:, 0] + offset, a[:, 1:cols + 1], width=cols, assumed=assumed)
 
+def _tyrex_load(path: Path, name: str, cols: int, offset: float, assumed: list) -> tuple:
+    """``(t + offset, values (N, cols))`` of the trial's file ``name`` (:func:`series`)."""
+    f = path / name
+    a = _text_table(f, cols + 1)
+    return series(f, name, a[:, 0] + offset, a[:, 1:cols + 1], width=cols, assumed=assumed)
+
+
+def _tyrex_imu(path: Path, platform: str, gyro: str, offset: float, assumed: list) -> tuple:
+    """``(t, gyro rad/s, t_accel, accel m/s^2 specific force)``; iOS's accelerometer from g
+    with the opposite sign."""
     if platform == "android":
         gyro_file = "gyroscope-calibrated.txt" if gyro == "calibrated" else "gyroscope.txt"
-        t, w = load(gyro_file, 3)
-        t_a, acc = load("accelerometer.txt", 3)
-        mag_file = "magnetometer-calibrated.txt" if mag == "calibrated" else "magnetometer.txt"
+        t, w = _tyrex_load(path, gyro_file, 3, offset, assumed)
+        t_a, acc = _tyrex_load(path, "accelerometer.txt", 3, offset, assumed)
         assumed.append("Android: gyro rad/s, accelerometer m/s^2, magnetometer uT as logged.")
-    else:
-        t, w = load("gyroscope.txt", 3)  # iOS: CoreMotion's raw gyro is the only one here
-        t_a, acc = load("accelerometer.txt", 3)
+    else:  # iOS: CoreMotion's raw gyro is the only one here
+        t, w = _tyrex_load(path, "gyroscope.txt", 3, offset, assumed)
+        t_a, acc = _tyrex_load(path, "accelerometer.txt", 3, offset, assumed)
         acc = acc * -STANDARD_GRAVITY_M_S2
-        mag_file = "magnetometer-calibrated.txt" if mag == "calibrated" else "magnetometer.txt"
         assumed.append("iOS: accelerometer in g with the opposite sign, converted "
                        "(x -9.80665 m/s^2 per g); gyro rad/s (raw); magnetometer uT.")
-    t_m = m = None
-    constant_norm = None
-    if (path / mag_file).is_file():
-        t_m, m = load(mag_file, 3)
-        if platform == "ios" and mag_file == "magnetometer-calibrated.txt":
-            t_m, m = _drop_held(t_m, m, mag_file, assumed, _IOS_HELD)
-            norm = np.linalg.norm(m, axis=1)
-            if norm.size > 10:
-                const = float(np.mean(np.abs(np.diff(norm)) < _CONST_NORM_UT))
-                constant_norm = const
-                if const > 0.5:
-                    assumed.append(
-                        f"{mag_file}: consecutive samples keep the same magnitude (within "
-                        f"{_CONST_NORM_UT} uT) in {100 * const:.1f} % of the pairs, changing "
-                        "only in jumps: CoreMotion's calibrated field behaves as a model "
-                        "output (a field of fixed magnitude turned by its own attitude "
-                        "estimate), not as a measurement; mag='raw' is the uncalibrated one.")
-    else:
-        assumed.append(f"No {mag_file}: no magnetometer.")
-    q_onboard = None
-    onboard_desc = None
-    if onboard:
-        if platform == "android" and (path / "rotation-vector.txt").is_file():
-            f = path / "rotation-vector.txt"
-            t_q, v = load("rotation-vector.txt", 4)
-            q_onboard = onboard_on(f, "rotation-vector.txt", t_q, v[:, [3, 0, 1, 2]], t)
-            onboard_desc = "Android rotation vector (q_ENU_device, magnetic north; x, y, z, w " \
-                           "reordered), slerped onto the gyro time stamps"
-        elif platform == "ios" and (path / "attitude.txt").is_file():
-            f = path / "attitude.txt"
-            t_q, v = load("attitude.txt", 4)
-            q_onboard = onboard_on(f, "attitude.txt", t_q, quat_mul(Q_ENU_NWU, v), t)
-            onboard_desc = "iOS CoreMotion attitude (w, x, y, z relative to x-north z-up, " \
-                           "turned to ENU by q_ENU_NWU), slerped onto the gyro time stamps"
-    device = {k: props[k] for k in ("Manufacturer", "Model", "OSVersion") if k in props}
-    meta = {"format": "tyrex", "platform": platform, "assumed": assumed, "device": device,
-            "gyro": gyro if platform == "android" else "raw", "mag": mag,
-            "onboard": onboard_desc, "time_offset_s": offset,
-            "mag_constant_norm_fraction": constant_norm,
-            "onboard_heading_reference": None if q_onboard is None else _TYREX_NORTH[platform],
-            "onboard_gravity_deg": onboard_gravity_deg(q_onboard, t, t_a, acc)}
-    q_true = mask = None
-    ref_file = None
-    if reference is not False and reference is not None:
-        from gnomon.io.tyrex import reference_on, reference_path
+    return t, w, t_a, acc
 
-        ref_file = reference_path(path) if reference is True else as_path(reference)
-        if reference is not True and not align_time:
-            raise InputError("the reference is on the data set's motion-capture clock: "
-                             "needs align_time=True", file=str(path), field="reference")
-        if not ref_file.is_file() or not align_time:
-            ref_file = None
-    if ref_file is not None:
-        q_true, mask, said, meta["truth"] = reference_on(t, ref_file, path.name)
-        assumed.extend(said)
-    names = {"t": "gyroscope", "gyro": "gyroscope", "accel": "accelerometer.txt",
-             "accel_t": "accelerometer.txt", "mag": mag_file, "mag_t": mag_file}
-    return build(path, names, t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m,
-                 mag_unit="uT", q_onboard=q_onboard, q_true=q_true, mask=mask,
-                 frames=_FRAMES, source=f"{path.name} (tyrex {platform})", meta=meta)
+
+def _tyrex_mag(path: Path, platform: str, mag_file: str, offset: float, assumed: list
+               ) -> tuple:
+    """``(t_mag, mag µT, fraction of consecutive samples keeping the magnitude)``: iOS's
+    calibrated field without the rows CoreMotion held (module docstring); (None, None,
+    None) without the file."""
+    if not (path / mag_file).is_file():
+        assumed.append(f"No {mag_file}: no magnetometer.")
+        return None, None, None
+    t_m, m = _tyrex_load(path, mag_file, 3, offset, assumed)
+    constant_norm = None
+    if platform == "ios" and mag_file == "magnetometer-calibrated.txt":
+        t_m, m = _drop_held(t_m, m, mag_file, assumed, _IOS_HELD)
+        norm = np.linalg.norm(m, axis=1)
+        if norm.size > 10:
+            const = float(np.mean(np.abs(np.diff(norm)) < _CONST_NORM_UT))
+            constant_norm = const
+            if const > 0.5:
+                assumed.append(
+                    f"{mag_file}: consecutive samples keep the same magnitude (within "
+                    f"{_CONST_NORM_UT} uT) in {100 * const:.1f} % of the pairs, changing "
+                    "only in jumps: CoreMotion's calibrated field behaves as a model "
+                    "output (a field of fixed magnitude turned by its own attitude "
+                    "estimate), not as a measurement; mag='raw' is the uncalibrated one.")
+    return t_m, m, constant_norm
+
+
+def _tyrex_onboard(path: Path, platform: str, offset: float, t: np.ndarray, assumed: list
+                   ) -> tuple:
+    """``(q_onboard, description)``: Android's rotation vector or iOS's attitude as
+    ``q_ENU_device`` slerped onto the gyro time stamps ``t``; (None, None) without it."""
+    if platform == "android" and (path / "rotation-vector.txt").is_file():
+        f = path / "rotation-vector.txt"
+        t_q, v = _tyrex_load(path, "rotation-vector.txt", 4, offset, assumed)
+        q_onboard = onboard_on(f, "rotation-vector.txt", t_q, v[:, [3, 0, 1, 2]], t)
+        return q_onboard, "Android rotation vector (q_ENU_device, magnetic north; x, y, z, " \
+            "w reordered), slerped onto the gyro time stamps"
+    if platform == "ios" and (path / "attitude.txt").is_file():
+        f = path / "attitude.txt"
+        t_q, v = _tyrex_load(path, "attitude.txt", 4, offset, assumed)
+        q_onboard = onboard_on(f, "attitude.txt", t_q, quat_mul(Q_ENU_NWU, v), t)
+        return q_onboard, "iOS CoreMotion attitude (w, x, y, z relative to x-north z-up, " \
+            "turned to ENU by q_ENU_NWU), slerped onto the gyro time stamps"
+    return None, None
+
+
+def _tyrex_reference(path: Path, reference, align_time: bool) -> Path | None:
+    """The motion-capture export to attach as truth, or None (module docstring)."""
+    if reference is False or reference is None:
+        return None
+    from gnomon.io.tyrex import reference_path
+
+    ref_file = reference_path(path) if reference is True else as_path(reference)
+    if reference is not True and not align_time:
+        raise InputError("the reference is on the data set's motion-capture clock: "
+                         "needs align_time=True", file=str(path), field="reference")
+    if not ref_file.is_file() or not align_time:
+        return None
+    return ref_file
 
 
 # ---------------------------------------------------------------------- CSV bundles

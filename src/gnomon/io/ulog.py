@@ -297,161 +297,22 @@ def read_ulog(path: str | os.PathLike, *, topic: str | None = None, instance: in
 
 def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onboard,
              allow_corrupt, cut) -> Recording:
+    """The Recording from what pyulog read (the steps below, in this order)."""
     assumed: list[str] = []
-    if ulog.file_corruption:
-        if not allow_corrupt:
-            raise InputError("pyulog detected corruption in the file (it skipped bytes to "
-                             "resynchronise); pass allow_corrupt=True to read what it "
-                             "recovered", file=str(path))
-        assumed.append("pyulog detected corruption; the samples it recovered were read "
-                       f"(allow_corrupt=True){': ' + printed.getvalue().strip()[:200]}.")
+    _corruption(path, ulog, printed, allow_corrupt, assumed)
     data = {(d.name, d.multi_id): d.data for d in ulog.data_list}
-    available = {}
-    for (name, multi), d in sorted(data.items()):
-        available.setdefault(name, {})[str(multi)] = int(d["timestamp"].size)
-
-    def get(name: str, inst: int, what: str) -> dict:
-        if (name, inst) not in data:
-            have = sorted(f"{n}[{i}]" for n, i in data if n in IMU_TOPICS + MAG_TOPICS)
-            raise InputError(f"the file has no {name}[{inst}] ({what}); it has "
-                             f"{', '.join(have) or 'no IMU topic'}", file=str(path),
-                             field=name)
-        return data[(name, inst)]
-
-    # ---------------------------------------------------------------- IMU
-    if topic is None:
-        if instance == 0 and ("sensor_combined", 0) in data:
-            topic = "sensor_combined"
-        else:
-            counts = {n: data[(n, instance)]["timestamp"].size for n in IMU_TOPICS[1:]
-                      if (n, instance) in data}
-            if not counts:
-                get("vehicle_imu", instance, "IMU")  # raises naming what there is
-            topic = max(counts, key=counts.get)
-    if topic == "sensor_combined" and instance != 0:
-        raise InputError("sensor_combined has one instance (PX4's selected IMU); use "
-                         "topic vehicle_imu or sensor_gyro for another instance",
-                         file=str(path), field="instance")
-    names = {"t": f"{topic}.timestamp"}
-    if topic == "sensor_combined":
-        d = get(topic, 0, "IMU")
-        t = d["timestamp"].astype(np.int64) * 1e-6
-        t_g, gyro = series(path, "sensor_combined.gyro_rad", t,
-                           _vec(d, [f"gyro_rad[{k}]" for k in range(3)], _FLU), assumed=assumed)
-        t_acc, ok = _shifted(d, d.get("accelerometer_timestamp_relative"), t)
-        del t
-        t_a, accel = series(path, "sensor_combined.accelerometer_m_s2", t_acc,
-                            _vec(d, [f"accelerometer_m_s2[{k}]" for k in range(3)], _FLU)[ok],
-                            assumed=assumed)
-        del t_acc
-        names.update(gyro="sensor_combined.gyro_rad", accel="sensor_combined.accelerometer_m_s2")
-        imu_desc = "sensor_combined (gyro at timestamp, accelerometer at timestamp + " \
-                   "accelerometer_timestamp_relative)"
-    elif topic == "vehicle_imu":
-        d = get(topic, instance, "IMU")
-        t = _stamps(d, assumed, topic)
-        dt_a = d["delta_angle_dt"].astype(float) * 1e-6
-        dt_v = d["delta_velocity_dt"].astype(float) * 1e-6
-        if np.any(dt_a <= 0) or np.any(dt_v <= 0):
-            bad = np.flatnonzero((dt_a <= 0) | (dt_v <= 0))[0]
-            raise InputError("integration interval is not positive", file=str(path),
-                             field="vehicle_imu.delta_angle_dt", row=int(bad))
-        t_g, gyro = series(path, "vehicle_imu.delta_angle", t,
-                           _vec(d, [f"delta_angle[{k}]" for k in range(3)], _FLU) / dt_a[:, None],
-                           assumed=assumed)
-        t_a, accel = series(path, "vehicle_imu.delta_velocity", t,
-                            _vec(d, [f"delta_velocity[{k}]" for k in range(3)], _FLU)
-                            / dt_v[:, None], assumed=assumed)
-        names.update(gyro="vehicle_imu.delta_angle", accel="vehicle_imu.delta_velocity")
-        imu_desc = f"vehicle_imu[{instance}] (delta_angle / delta_angle_dt, delta_velocity / " \
-                   "delta_velocity_dt: the mean rate and specific force over each interval)"
-    else:
-        dg, da = get("sensor_gyro", instance, "gyro"), get("sensor_accel", instance,
-                                                          "accelerometer")
-        t_g, gyro = series(path, "sensor_gyro", _stamps(dg, assumed, "sensor_gyro"),
-                           _vec(dg, "xyz", _FLU), assumed=assumed)
-        t_a, accel = series(path, "sensor_accel", _stamps(da, assumed, "sensor_accel"),
-                            _vec(da, "xyz", _FLU), assumed=assumed)
-        names.update(gyro="sensor_gyro", accel="sensor_accel")
-        imu_desc = f"sensor_gyro[{instance}] and sensor_accel[{instance}]"
-    if t_g.size < 2:
-        raise InputError(f"{t_g.size} gyro sample(s); at least 2 needed", file=str(path),
-                         field=names["gyro"])
-    if t_a.size == 0:
-        raise InputError("no accelerometer sample", file=str(path), field=names["accel"])
-
-    # ---------------------------------------------------------------- magnetometer
-    mag = t_m = None
-    mag_desc = "none in the file"
-    if mag_topic is None:
-        if ("vehicle_magnetometer", mag_instance) in data:
-            mag_topic = "vehicle_magnetometer"
-        elif ("sensor_combined", 0) in data and "magnetometer_ga[0]" in data[
-                ("sensor_combined", 0)] and mag_instance == 0:
-            mag_topic = "sensor_combined"
-        elif ("sensor_mag", mag_instance) in data:
-            mag_topic = "sensor_mag"
-        else:
-            mag_topic = "none"
-    if mag_topic == "vehicle_magnetometer":
-        d = get(mag_topic, mag_instance, "magnetometer")
-        t_m, mag = series(path, "vehicle_magnetometer.magnetometer_ga",
-                          _stamps(d, assumed, mag_topic),
-                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG),
-                          assumed=assumed)
-        mag_desc = f"vehicle_magnetometer[{mag_instance}] (calibrated by PX4)"
-    elif mag_topic == "sensor_combined":
-        if mag_instance != 0:
-            raise InputError("sensor_combined has one instance", file=str(path),
-                             field="mag_instance")
-        d = get(mag_topic, 0, "magnetometer")
-        if "magnetometer_ga[0]" not in d:
-            raise InputError("this firmware's sensor_combined has no magnetometer_ga; use "
-                             "vehicle_magnetometer or sensor_mag", file=str(path),
-                             field="mag_topic")
-        t_mag, ok = _shifted(d, d["magnetometer_timestamp_relative"])
-        t_m, mag = series(path, "sensor_combined.magnetometer_ga", t_mag,
-                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG)[ok],
-                          assumed=assumed)
-        del t_mag
-        mag_desc = "sensor_combined.magnetometer_ga (older firmware) at timestamp + " \
-                   "magnetometer_timestamp_relative"
-    elif mag_topic == "sensor_mag":
-        d = get(mag_topic, mag_instance, "magnetometer")
-        t_m, mag = series(path, "sensor_mag", _stamps(d, assumed, mag_topic), _vec(d, "xyz", _MAG),
-                          assumed=assumed)
-        mag_desc = f"sensor_mag[{mag_instance}] (raw, not calibrated)"
-    if mag is not None and mag.shape[0] == 0:  # (already FLU and µT: _MAG)
-        mag = t_m = None
-        mag_desc = f"{mag_topic}: no valid sample"
+    available = _available(data)
+    topic = _imu_topic(path, data, topic, instance)
+    t_g, gyro, t_a, accel, names, imu_desc = _imu(path, data, topic, instance, assumed)
+    mag_topic = _mag_topic(data, mag_topic, mag_instance)
+    t_m, mag, mag_desc = _mag(path, data, mag_topic, mag_instance, assumed)
     names.update(mag=str(mag_topic), mag_t=str(mag_topic))
-
-    # ---------------------------------------------------------------- estimates
-    q_onboard = q_true = None
-    onboard_desc = None
-    estimates = {}
-    for name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
-        if (name, 0) in data and (onboard or name != "vehicle_attitude"):
-            d = data[(name, 0)]
-            estimates[name] = (_stamps(d, assumed, name),
-                               _vec(d, [f"q[{k}]" for k in range(4)]))
+    estimates = _estimates(data, onboard, assumed)
     dropouts = len(ulog.dropouts)
     for d in ulog.data_list:  # pyulog's arrays are copied out: free them before resampling
         d.data = {}
     data.clear()
-    if "vehicle_attitude" in estimates:
-        t_q, q = estimates.pop("vehicle_attitude")
-        q_onboard = onboard_on(path, "vehicle_attitude", t_q, ned_frd_to_enu_flu(q), t_g)
-        onboard_desc = "vehicle_attitude (PX4's estimator, EKF2 on current firmware), " \
-                       "slerped onto the gyro time stamps"
-    if "vehicle_attitude_groundtruth" in estimates:
-        t_q, q = estimates.pop("vehicle_attitude_groundtruth")
-        q_true = onboard_on(path, "vehicle_attitude_groundtruth", t_q, ned_frd_to_enu_flu(q),
-                            t_g)
-        assumed.append("vehicle_attitude_groundtruth (the simulator's truth) is q_true, "
-                       "slerped onto the gyro time stamps.")
-
-    t_q = q = None  # (the estimates' own samples are not kept)
+    q_onboard, q_true, onboard_desc = _resampled(path, estimates, t_g, assumed)
     truncated = None if cut is None else cut_short(*cut, t_g, assumed)
     info = ulog.msg_info_dict
     heading_ref = _heading_reference(ulog.initial_parameters) if q_onboard is not None \
@@ -476,3 +337,208 @@ def _extract(path, ulog, printed, topic, instance, mag_topic, mag_instance, onbo
                  accel_t=t_a, mag=mag, mag_t=t_m, mag_unit="uT", q_onboard=q_onboard,
                  q_true=q_true, frames={"reference": "ENU", "body": "FLU"},
                  source=f"{path.stem} (PX4 ULog)", meta=meta)
+
+
+def _corruption(path, ulog, printed, allow_corrupt: bool, assumed: list) -> None:
+    """Refuse a file in which pyulog detected corruption, unless ``allow_corrupt`` (said)."""
+    if ulog.file_corruption:
+        if not allow_corrupt:
+            raise InputError("pyulog detected corruption in the file (it skipped bytes to "
+                             "resynchronise); pass allow_corrupt=True to read what it "
+                             "recovered", file=str(path))
+        assumed.append("pyulog detected corruption; the samples it recovered were read "
+                       f"(allow_corrupt=True){': ' + printed.getvalue().strip()[:200]}.")
+
+
+def _available(data: dict) -> dict:
+    """topic -> {instance: message count} (``meta["available"]``)."""
+    available = {}
+    for (name, multi), d in sorted(data.items()):
+        available.setdefault(name, {})[str(multi)] = int(d["timestamp"].size)
+    return available
+
+
+def _get(path, data: dict, name: str, inst: int, what: str) -> dict:
+    """The fields of topic ``name`` instance ``inst``; its absence raises naming the IMU
+    and magnetometer topics the file has."""
+    if (name, inst) not in data:
+        have = sorted(f"{n}[{i}]" for n, i in data if n in IMU_TOPICS + MAG_TOPICS)
+        raise InputError(f"the file has no {name}[{inst}] ({what}); it has "
+                         f"{', '.join(have) or 'no IMU topic'}", file=str(path),
+                         field=name)
+    return data[(name, inst)]
+
+
+def _imu_topic(path, data: dict, topic: str | None, instance: int) -> str:
+    """The IMU topic asked for, else the default (module docstring)."""
+    if topic is None:
+        if instance == 0 and ("sensor_combined", 0) in data:
+            topic = "sensor_combined"
+        else:
+            counts = {n: data[(n, instance)]["timestamp"].size for n in IMU_TOPICS[1:]
+                      if (n, instance) in data}
+            if not counts:
+                _get(path, data, "vehicle_imu", instance, "IMU")  # raises naming what there is
+            topic = max(counts, key=counts.get)
+    if topic == "sensor_combined" and instance != 0:
+        raise InputError("sensor_combined has one instance (PX4's selected IMU); use "
+                         "topic vehicle_imu or sensor_gyro for another instance",
+                         file=str(path), field="instance")
+    return topic
+
+
+def _imu(path, data: dict, topic: str, instance: int, assumed: list) -> tuple:
+    """``(t_gyro, gyro, t_accel, accel, names, description)`` of the IMU topic, FLU, with
+    at least 2 gyro and 1 accelerometer samples; ``names``: Recording field -> log field."""
+    if topic == "sensor_combined":
+        t_g, gyro, t_a, accel = _sensor_combined(path, _get(path, data, topic, 0, "IMU"),
+                                                 assumed)
+        names = {"gyro": "sensor_combined.gyro_rad",
+                 "accel": "sensor_combined.accelerometer_m_s2"}
+        imu_desc = "sensor_combined (gyro at timestamp, accelerometer at timestamp + " \
+                   "accelerometer_timestamp_relative)"
+    elif topic == "vehicle_imu":
+        t_g, gyro, t_a, accel = _vehicle_imu(path, _get(path, data, topic, instance, "IMU"),
+                                             assumed)
+        names = {"gyro": "vehicle_imu.delta_angle", "accel": "vehicle_imu.delta_velocity"}
+        imu_desc = f"vehicle_imu[{instance}] (delta_angle / delta_angle_dt, delta_velocity / " \
+                   "delta_velocity_dt: the mean rate and specific force over each interval)"
+    else:
+        t_g, gyro, t_a, accel = _sensor_gyro_accel(
+            path, _get(path, data, "sensor_gyro", instance, "gyro"),
+            _get(path, data, "sensor_accel", instance, "accelerometer"), assumed)
+        names = {"gyro": "sensor_gyro", "accel": "sensor_accel"}
+        imu_desc = f"sensor_gyro[{instance}] and sensor_accel[{instance}]"
+    names = {"t": f"{topic}.timestamp", **names}
+    if t_g.size < 2:
+        raise InputError(f"{t_g.size} gyro sample(s); at least 2 needed", file=str(path),
+                         field=names["gyro"])
+    if t_a.size == 0:
+        raise InputError("no accelerometer sample", file=str(path), field=names["accel"])
+    return t_g, gyro, t_a, accel, names, imu_desc
+
+
+def _sensor_combined(path, d: dict, assumed: list) -> tuple:
+    """Gyro at ``timestamp``, accelerometer at ``timestamp +
+    accelerometer_timestamp_relative`` (rows where that is valid)."""
+    t = d["timestamp"].astype(np.int64) * 1e-6
+    t_g, gyro = series(path, "sensor_combined.gyro_rad", t,
+                       _vec(d, [f"gyro_rad[{k}]" for k in range(3)], _FLU), assumed=assumed)
+    t_acc, ok = _shifted(d, d.get("accelerometer_timestamp_relative"), t)
+    del t
+    t_a, accel = series(path, "sensor_combined.accelerometer_m_s2", t_acc,
+                        _vec(d, [f"accelerometer_m_s2[{k}]" for k in range(3)], _FLU)[ok],
+                        assumed=assumed)
+    return t_g, gyro, t_a, accel
+
+
+def _vehicle_imu(path, d: dict, assumed: list) -> tuple:
+    """Rate and specific force as ``delta_angle / delta_angle_dt`` and ``delta_velocity /
+    delta_velocity_dt`` (intervals must be positive)."""
+    t = _stamps(d, assumed, "vehicle_imu")
+    dt_a = d["delta_angle_dt"].astype(float) * 1e-6
+    dt_v = d["delta_velocity_dt"].astype(float) * 1e-6
+    if np.any(dt_a <= 0) or np.any(dt_v <= 0):
+        bad = np.flatnonzero((dt_a <= 0) | (dt_v <= 0))[0]
+        raise InputError("integration interval is not positive", file=str(path),
+                         field="vehicle_imu.delta_angle_dt", row=int(bad))
+    t_g, gyro = series(path, "vehicle_imu.delta_angle", t,
+                       _vec(d, [f"delta_angle[{k}]" for k in range(3)], _FLU) / dt_a[:, None],
+                       assumed=assumed)
+    t_a, accel = series(path, "vehicle_imu.delta_velocity", t,
+                        _vec(d, [f"delta_velocity[{k}]" for k in range(3)], _FLU)
+                        / dt_v[:, None], assumed=assumed)
+    return t_g, gyro, t_a, accel
+
+
+def _sensor_gyro_accel(path, dg: dict, da: dict, assumed: list) -> tuple:
+    """``sensor_gyro`` and ``sensor_accel``: ``x, y, z`` at their own time stamps."""
+    t_g, gyro = series(path, "sensor_gyro", _stamps(dg, assumed, "sensor_gyro"),
+                       _vec(dg, "xyz", _FLU), assumed=assumed)
+    t_a, accel = series(path, "sensor_accel", _stamps(da, assumed, "sensor_accel"),
+                        _vec(da, "xyz", _FLU), assumed=assumed)
+    return t_g, gyro, t_a, accel
+
+
+def _mag_topic(data: dict, mag_topic: str | None, mag_instance: int) -> str:
+    """The magnetometer topic asked for, else the default (module docstring) or ``"none"``."""
+    if mag_topic is not None:
+        return mag_topic
+    if ("vehicle_magnetometer", mag_instance) in data:
+        return "vehicle_magnetometer"
+    if ("sensor_combined", 0) in data and "magnetometer_ga[0]" in data[
+            ("sensor_combined", 0)] and mag_instance == 0:
+        return "sensor_combined"
+    if ("sensor_mag", mag_instance) in data:
+        return "sensor_mag"
+    return "none"
+
+
+def _mag(path, data: dict, mag_topic: str, mag_instance: int, assumed: list) -> tuple:
+    """``(t_mag, mag in µT FLU, description)``; (None, None, why) without a sample."""
+    mag = t_m = None
+    mag_desc = "none in the file"
+    if mag_topic == "vehicle_magnetometer":
+        d = _get(path, data, mag_topic, mag_instance, "magnetometer")
+        t_m, mag = series(path, "vehicle_magnetometer.magnetometer_ga",
+                          _stamps(d, assumed, mag_topic),
+                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG),
+                          assumed=assumed)
+        mag_desc = f"vehicle_magnetometer[{mag_instance}] (calibrated by PX4)"
+    elif mag_topic == "sensor_combined":
+        if mag_instance != 0:
+            raise InputError("sensor_combined has one instance", file=str(path),
+                             field="mag_instance")
+        d = _get(path, data, mag_topic, 0, "magnetometer")
+        if "magnetometer_ga[0]" not in d:
+            raise InputError("this firmware's sensor_combined has no magnetometer_ga; use "
+                             "vehicle_magnetometer or sensor_mag", file=str(path),
+                             field="mag_topic")
+        t_mag, ok = _shifted(d, d["magnetometer_timestamp_relative"])
+        t_m, mag = series(path, "sensor_combined.magnetometer_ga", t_mag,
+                          _vec(d, [f"magnetometer_ga[{k}]" for k in range(3)], _MAG)[ok],
+                          assumed=assumed)
+        del t_mag
+        mag_desc = "sensor_combined.magnetometer_ga (older firmware) at timestamp + " \
+                   "magnetometer_timestamp_relative"
+    elif mag_topic == "sensor_mag":
+        d = _get(path, data, mag_topic, mag_instance, "magnetometer")
+        t_m, mag = series(path, "sensor_mag", _stamps(d, assumed, mag_topic), _vec(d, "xyz", _MAG),
+                          assumed=assumed)
+        mag_desc = f"sensor_mag[{mag_instance}] (raw, not calibrated)"
+    if mag is not None and mag.shape[0] == 0:  # (already FLU and µT: _MAG)
+        mag = t_m = None
+        mag_desc = f"{mag_topic}: no valid sample"
+    return t_m, mag, mag_desc
+
+
+def _estimates(data: dict, onboard: bool, assumed: list) -> dict:
+    """topic -> (time stamps, ``q_NED_FRD``) of ``vehicle_attitude`` (when ``onboard``) and
+    ``vehicle_attitude_groundtruth``, copied out of pyulog's arrays."""
+    estimates = {}
+    for name in ("vehicle_attitude", "vehicle_attitude_groundtruth"):
+        if (name, 0) in data and (onboard or name != "vehicle_attitude"):
+            d = data[(name, 0)]
+            estimates[name] = (_stamps(d, assumed, name),
+                               _vec(d, [f"q[{k}]" for k in range(4)]))
+    return estimates
+
+
+def _resampled(path, estimates: dict, t_g: np.ndarray, assumed: list) -> tuple:
+    """``(q_onboard, q_true, onboard description)``: the estimates in ENU/FLU slerped onto
+    the gyro time stamps (each popped from ``estimates`` once used: its samples are not
+    kept)."""
+    q_onboard = q_true = None
+    onboard_desc = None
+    if "vehicle_attitude" in estimates:
+        t_q, q = estimates.pop("vehicle_attitude")
+        q_onboard = onboard_on(path, "vehicle_attitude", t_q, ned_frd_to_enu_flu(q), t_g)
+        onboard_desc = "vehicle_attitude (PX4's estimator, EKF2 on current firmware), " \
+                       "slerped onto the gyro time stamps"
+    if "vehicle_attitude_groundtruth" in estimates:
+        t_q, q = estimates.pop("vehicle_attitude_groundtruth")
+        q_true = onboard_on(path, "vehicle_attitude_groundtruth", t_q, ned_frd_to_enu_flu(q),
+                            t_g)
+        assumed.append("vehicle_attitude_groundtruth (the simulator's truth) is q_true, "
+                       "slerped onto the gyro time stamps.")
+    return q_onboard, q_true, onboard_desc

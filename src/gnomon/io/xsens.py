@@ -36,6 +36,7 @@ import csv as _csv
 import io
 import os
 import re
+from pathlib import Path
 
 import numpy as np
 
@@ -83,12 +84,97 @@ def read_xsens(path: str | os.PathLike, *, gyro_unit: str = "rad/s", mag_au_uT: 
     onboard : keep the MTi's orientation as ``q_onboard``.
     """
     path = as_path(path)
+    _check_options(path, gyro_unit, mag_au_uT)
+    info, table = _parse(path)
+    assumed: list[str] = []
+    tname, t_all = _time_stamps(table, info, assumed)
+    system = _coordinate_system(path, info, assumed)
+    got = {k: _sensor(table, k, t_all, tname, assumed) for k in ("gyro", "accel", "mag")}
+    for k in ("gyro", "accel"):
+        if got[k] is None:
+            raise InputError(f"no {' '.join(_GROUPS[k])} columns", file=str(path),
+                             field=_GROUPS[k][0])
+    t, w = got["gyro"]
+    t_a, acc = got["accel"]
+    t_m, m = got["mag"] if got["mag"] is not None else (None, None)
+    w, acc, m = _to_si_flu(w, acc, m, gyro_unit, mag_au_uT, system, assumed)
+    q_onboard, onboard_desc = (_onboard(table, t_all, t, system, assumed) if onboard
+                               else (None, None))
+    assumed[:0] = ["Xsens sensor frame S; Acc m/s^2 (specific force), Gyr " + gyro_unit + "."]
+    meta = {"format": "xsens", "assumed": assumed, "coordinate_system": system,
+            "device": {k: info[k] for k in info if k in ("DeviceId", "ProductCode",
+                                                          "Firmware Version", "Filter Profile",
+                                                          "Update Rate", "MT Manager version")},
+            "onboard": onboard_desc,
+            "onboard_heading_reference": None if q_onboard is None else (
+                "magnetic north (the MTi's default; true north only if a declination was "
+                "set in the device)")}
+    return build(path, {"t": tname, "gyro": "Gyr_X", "accel": "Acc_X", "mag": "Mag_X",
+                        "q_onboard": "Quat_q0"},
+                 t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m, mag_unit="uT",
+                 q_onboard=q_onboard, frames={"reference": "ENU", "body": "xsens"},
+                 source=f"{path.stem} (Xsens MT Manager)", meta=meta)
+
+
+def _check_options(path: Path, gyro_unit: str, mag_au_uT) -> None:
     if gyro_unit not in ("rad/s", "deg/s"):
         raise InputError(f"expected rad/s or deg/s, got {gyro_unit!r}", file=str(path),
                          field="gyro_unit")
     if not (isinstance(mag_au_uT, int | float) and np.isfinite(mag_au_uT) and mag_au_uT > 0):
         raise InputError(f"expected a positive field strength in uT, got {mag_au_uT!r}",
                          file=str(path), field="mag_au_uT")
+
+
+class _Table:
+    """The data rows of an export as strings (each as long as the header), by column name."""
+
+    def __init__(self, path: Path, header: list[str], rows: list[list[str]]):
+        self.path, self.rows = path, rows
+        self.cols = {name: j for j, name in enumerate(header)}
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.cols
+
+    def column(self, name: str) -> np.ndarray:
+        """One column as float: an empty or ``NaN`` cell is NaN, another non-number raises
+        naming the column and the data row (1-based)."""
+        j = self.cols[name]
+        out = np.empty(len(self.rows))
+        for i, r in enumerate(self.rows):
+            c = r[j].strip()
+            if c == "" or c.lower() == "nan":
+                out[i] = np.nan
+                continue
+            try:
+                out[i] = float(c)
+            except ValueError:
+                raise InputError(f"not a number: {c!r}", file=str(self.path), field=name,
+                                 row=i + 1) from None
+        return out
+
+    def group(self, key: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """The columns of ``_GROUPS[key]`` as (rows with a sample, (N, k) values), None when
+        the file has none of them; an incomplete group or a partly filled row raises."""
+        names = _GROUPS[key]
+        present = [n in self.cols for n in names]
+        if not any(present):
+            return None
+        if not all(present):
+            raise InputError(f"the group {', '.join(names)} is incomplete", file=str(self.path),
+                             field=names[present.index(False)])
+        v = np.column_stack([self.column(n) for n in names])
+        filled = np.isfinite(v)
+        partial = filled.any(axis=1) & ~filled.all(axis=1)
+        if partial.any():
+            i = int(np.argmax(partial))
+            raise InputError("empty cell (the other axes have a value)", file=str(self.path),
+                             field=names[int(np.argmax(~filled[i]))], row=i + 1)
+        keep = filled.all(axis=1)
+        return keep, v
+
+
+def _parse(path: Path) -> tuple[dict, _Table]:
+    """The ``// key: value`` comment lines (as a dict) and the table under them."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as err:
@@ -111,107 +197,83 @@ def read_xsens(path: str | os.PathLike, *, gyro_unit: str = "rad/s", mag_au_uT: 
         elif len(r) > len(header):
             raise InputError(f"{len(r)} cells, header has {len(header)}", file=str(path),
                              row=i + 1)
-    cols = {name: j for j, name in enumerate(header)}
-
-    def column(name: str) -> np.ndarray:
-        j = cols[name]
-        out = np.empty(len(data))
-        for i, r in enumerate(data):
-            c = r[j].strip()
-            if c == "" or c.lower() == "nan":
-                out[i] = np.nan
-                continue
-            try:
-                out[i] = float(c)
-            except ValueError:
-                raise InputError(f"not a number: {c!r}", file=str(path), field=name,
-                                 row=i + 1) from None
-        return out
-
-    def group(key: str) -> tuple[np.ndarray, np.ndarray] | None:
-        names = _GROUPS[key]
-        present = [n in cols for n in names]
-        if not any(present):
-            return None
-        if not all(present):
-            raise InputError(f"the group {', '.join(names)} is incomplete", file=str(path),
-                             field=names[present.index(False)])
-        v = np.column_stack([column(n) for n in names])
-        filled = np.isfinite(v)
-        partial = filled.any(axis=1) & ~filled.all(axis=1)
-        if partial.any():
-            i = int(np.argmax(partial))
-            raise InputError("empty cell (the other axes have a value)", file=str(path),
-                             field=names[int(np.argmax(~filled[i]))], row=i + 1)
-        keep = filled.all(axis=1)
-        return keep, v
-
     info = {}
     for c in comments:
         if ":" in c:
             k, v = c.split(":", 1)
             info[k.strip()] = v.strip()
-    assumed = []
-    if "SampleTimeFine" in cols:
-        ticks = column("SampleTimeFine")
-        ok = np.isfinite(ticks)
-        tk = ticks[ok].astype(np.int64)
-        wraps = np.concatenate([[0], np.cumsum(np.diff(tk) < -2**31)])
-        t_all = np.full(len(data), np.nan)
-        t_all[ok] = (tk + wraps * 2**32) * 1e-4
-        tname = "SampleTimeFine"
+    return info, _Table(path, header, data)
+
+
+def _time_stamps(table: _Table, info: dict, assumed: list) -> tuple[str, np.ndarray]:
+    """(the column the time comes from, the time of every row in s, NaN where empty)."""
+    if "SampleTimeFine" in table:
+        t_all = _unwrapped(table.column("SampleTimeFine"), 32) * 1e-4
         assumed.append("Time from SampleTimeFine (10 kHz ticks, unwrapped at 2^32).")
-    elif "Time" in cols or "SampleTimeCoarse" in cols:
-        tname = "Time" if "Time" in cols else "SampleTimeCoarse"
-        t_all = column(tname)
+        return "SampleTimeFine", t_all
+    if "Time" in table or "SampleTimeCoarse" in table:
+        tname = "Time" if "Time" in table else "SampleTimeCoarse"
+        t_all = table.column(tname)
         assumed.append(f"Time from {tname} (s).")
-    elif "PacketCounter" in cols:
+        return tname, t_all
+    if "PacketCounter" in table:
         m = re.search(r"([\d.]+)\s*Hz", info.get("Update Rate", ""))
         if not m:
             raise InputError("no time column (SampleTimeFine, Time) and no '// Update Rate:' "
-                             "line to time the PacketCounter", file=str(path),
+                             "line to time the PacketCounter", file=str(table.path),
                              field="SampleTimeFine")
         rate = float(m.group(1))
-        pc = column("PacketCounter")
-        ok = np.isfinite(pc)
-        k = pc[ok].astype(np.int64)
-        wraps = np.concatenate([[0], np.cumsum(np.diff(k) < -2**15)])
-        t_all = np.full(len(data), np.nan)
-        t_all[ok] = (k + wraps * 2**16) / rate
-        tname = "PacketCounter"
+        t_all = _unwrapped(table.column("PacketCounter"), 16) / rate
         assumed.append(f"Time from PacketCounter at the update rate {rate:g} Hz.")
-    else:
-        raise InputError("no time column (SampleTimeFine, Time, SampleTimeCoarse or "
-                         "PacketCounter)", file=str(path), field="SampleTimeFine")
+        return "PacketCounter", t_all
+    raise InputError("no time column (SampleTimeFine, Time, SampleTimeCoarse or "
+                     "PacketCounter)", file=str(table.path), field="SampleTimeFine")
+
+
+def _unwrapped(counter: np.ndarray, bits: int) -> np.ndarray:
+    """A ``bits``-bit counter (NaN where empty) unwrapped: 2^bits added at each step back by
+    more than half the range."""
+    ok = np.isfinite(counter)
+    k = counter[ok].astype(np.int64)
+    wraps = np.concatenate([[0], np.cumsum(np.diff(k) < -2**(bits - 1))])
+    out = np.full(counter.size, np.nan)
+    out[ok] = k + wraps * 2**bits
+    return out
+
+
+def _coordinate_system(path: Path, info: dict, assumed: list) -> str:
+    """The local frame L of ``// Coordinate system:`` (ENU when not stated)."""
     system = info.get("Coordinate system", "ENU").strip().upper() or "ENU"
     if system not in ("ENU", "NED", "NWU"):
         raise InputError(f"unknown coordinate system {system!r} (ENU, NED or NWU)",
                          file=str(path), field="Coordinate system")
     if "Coordinate system" not in info:
         assumed.append("No '// Coordinate system:' line: ENU (Xsens' default) assumed.")
+    return system
 
-    def sensor(key: str):
-        g = group(key)
-        if g is None:
-            return None
-        keep, v = g
-        if np.any(keep & ~np.isfinite(t_all)):
-            i = int(np.argmax(keep & ~np.isfinite(t_all)))
-            raise InputError("no time stamp for a sample", file=str(path), field=tname,
-                             row=i + 1)
-        return series(path, _GROUPS[key][0], t_all[keep], v[keep], width=v.shape[1],
-                      assumed=assumed)
 
-    got = {k: sensor(k) for k in ("gyro", "accel", "mag")}
-    for k in ("gyro", "accel"):
-        if got[k] is None:
-            raise InputError(f"no {' '.join(_GROUPS[k])} columns", file=str(path),
-                             field=_GROUPS[k][0])
-    t, w = got["gyro"]
+def _sensor(table: _Table, key: str, t_all: np.ndarray, tname: str, assumed: list
+            ) -> tuple[np.ndarray, np.ndarray] | None:
+    """One sensor's own samples and time stamps (:func:`series`), None when the file has
+    none of its columns; a sample in a row without a time stamp raises."""
+    g = table.group(key)
+    if g is None:
+        return None
+    keep, v = g
+    if np.any(keep & ~np.isfinite(t_all)):
+        i = int(np.argmax(keep & ~np.isfinite(t_all)))
+        raise InputError("no time stamp for a sample", file=str(table.path), field=tname,
+                         row=i + 1)
+    return series(table.path, _GROUPS[key][0], t_all[keep], v[keep], width=v.shape[1],
+                  assumed=assumed)
+
+
+def _to_si_flu(w: np.ndarray, acc: np.ndarray, m: np.ndarray | None, gyro_unit: str,
+               mag_au_uT: float, system: str, assumed: list) -> tuple:
+    """Gyro in rad/s, magnetometer a.u. in µT and, with NED, the sensor axes x, -y, -z
+    back to FLU."""
     if gyro_unit == "deg/s":
         w = np.deg2rad(w)
-    t_a, acc = got["accel"]
-    t_m, m = got["mag"] if got["mag"] is not None else (None, None)
     if m is not None:
         m = m * float(mag_au_uT)
         assumed.append(f"Magnetometer a.u. (normalised at calibration) x {mag_au_uT:g} uT.")
@@ -219,38 +281,30 @@ def read_xsens(path: str | os.PathLike, *, gyro_unit: str = "rad/s", mag_au_uT: 
         w, acc = frd_to_flu(w), frd_to_flu(acc)
         m = None if m is None else frd_to_flu(m)
         assumed.append("Coordinate system NED: sensor axes x, -y, -z converted to FLU.")
-    q_onboard = None
-    onboard_desc = None
-    if onboard:
-        qq = None
-        if "Quat_q0" in cols:
-            keep, v = group("quat")
-            t_q, qq = series(path, "Quat_q0", t_all[keep], v[keep], width=4, assumed=assumed)
-            onboard_desc = "Quat_q0..q3 (q_LS)"
-        elif "Roll" in cols:
-            keep, v = group("euler")
-            t_q, e = series(path, "Roll", t_all[keep], v[keep], assumed=assumed)
-            qq = quat_from_euler(np.deg2rad(e))
-            onboard_desc = "Roll, Pitch, Yaw (deg, z-y'-x'', q_LS)"
-        if qq is not None:
-            if system == "NED":
-                qq = quat_mul(quat_mul(Q_ENU_NED, qq), Q_FRD_FLU)
-            elif system == "NWU":
-                qq = quat_mul(Q_ENU_NWU, qq)
-            q_onboard = onboard_on(path, onboard_desc.split(" ")[0], t_q, qq, t)
-            onboard_desc += f", local frame {system} turned to ENU, slerped onto the gyro " \
-                            "time stamps"
-    assumed[:0] = ["Xsens sensor frame S; Acc m/s^2 (specific force), Gyr " + gyro_unit + "."]
-    meta = {"format": "xsens", "assumed": assumed, "coordinate_system": system,
-            "device": {k: info[k] for k in info if k in ("DeviceId", "ProductCode",
-                                                          "Firmware Version", "Filter Profile",
-                                                          "Update Rate", "MT Manager version")},
-            "onboard": onboard_desc,
-            "onboard_heading_reference": None if q_onboard is None else (
-                "magnetic north (the MTi's default; true north only if a declination was "
-                "set in the device)")}
-    return build(path, {"t": tname, "gyro": "Gyr_X", "accel": "Acc_X", "mag": "Mag_X",
-                        "q_onboard": "Quat_q0"},
-                 t=t, gyro=w, accel=acc, accel_t=t_a, mag=m, mag_t=t_m, mag_unit="uT",
-                 q_onboard=q_onboard, frames={"reference": "ENU", "body": "xsens"},
-                 source=f"{path.stem} (Xsens MT Manager)", meta=meta)
+    return w, acc, m
+
+
+def _onboard(table: _Table, t_all: np.ndarray, t: np.ndarray, system: str, assumed: list
+             ) -> tuple[np.ndarray | None, str | None]:
+    """The MTi's own ``q_LS`` (``Quat_q0..q3``, else ``Roll, Pitch, Yaw``) with L turned to
+    ENU, slerped onto the gyro time stamps ``t``, and its description; (None, None) when
+    the file has neither."""
+    if "Quat_q0" in table:
+        keep, v = table.group("quat")
+        t_q, qq = series(table.path, "Quat_q0", t_all[keep], v[keep], width=4, assumed=assumed)
+        desc = "Quat_q0..q3 (q_LS)"
+    elif "Roll" in table:
+        keep, v = table.group("euler")
+        t_q, e = series(table.path, "Roll", t_all[keep], v[keep], assumed=assumed)
+        qq = quat_from_euler(np.deg2rad(e))
+        desc = "Roll, Pitch, Yaw (deg, z-y'-x'', q_LS)"
+    else:
+        return None, None
+    if system == "NED":
+        qq = quat_mul(quat_mul(Q_ENU_NED, qq), Q_FRD_FLU)
+    elif system == "NWU":
+        qq = quat_mul(Q_ENU_NWU, qq)
+    q_onboard = onboard_on(table.path, desc.split(" ")[0], t_q, qq, t)
+    return q_onboard, desc + f", local frame {system} turned to ENU, slerped onto the gyro " \
+        "time stamps"
+

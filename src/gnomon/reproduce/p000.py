@@ -258,68 +258,124 @@ def benchmark_speed(rec=None, n_samples: int = 1_000_000, repeats: int = 3) -> d
             "qcf": n / (t_gn + t_qcf), "mekf": n / t_mekf}
 
 
+# ------------------------------------------------------------------ the reproduction
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """The seeds and run length of one reproduction (``quick`` or full), and its log."""
+
+    quick: bool
+    progress: bool
+    t_start: float
+    tune_seeds: list
+    report_seeds: list
+    duration: float | None
+
+    @classmethod
+    def make(cls, quick: bool, progress: bool) -> _Plan:
+        return cls(quick, progress, time.time(), [0, 1] if quick else [0, 1, 2, 3],
+                   list(range(100, 104)) if quick else list(range(100, 124)),
+                   11000.0 if quick else None)
+
+    def say(self, msg: str) -> None:
+        if self.progress:
+            print(f"[p000 {time.time() - self.t_start:6.1f}s] {msg}", flush=True)
+
+
 def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False) -> dict:
-    """Reproduce seed 000 (see module docstring); returns the issue's JSON-contract dict."""
-    t_start = time.time()
-    tune_seeds = [0, 1] if quick else [0, 1, 2, 3]
-    report_seeds = list(range(100, 104)) if quick else list(range(100, 124))
-    duration = 11000.0 if quick else None
+    """Reproduce seed 000 (see module docstring), experiment by experiment in the paper's
+    order, then what gnomon adds; returns the issue's JSON-contract dict."""
+    plan = _Plan.make(quick, progress)
+    plan.say("simulating")
+    tune = [_Case(simulate_seed(s, plan.duration)) for s in plan.tune_seeds]
+    report = [_Case(simulate_seed(s, plan.duration)) for s in plan.report_seeds]
+    gains, tables = tune_explicit_and_quaternion_cf(plan, tune)
+    tuned, speed_in_run = explicit_vs_quaternion_cf_with_drift_step(plan, report, gains)
+    tuned["drift_aware"] = drift_aware_gains(report, tables)
+    tuned["mekf_reference"] = mekf_for_reference(tune, report, tuned)
+    solvers = wahba_solvers_as_q_mes(plan, report, gains["qcf"])
+    same_gain, sg_cases = both_filters_at_one_high_gain(plan)
+    sun_loss, sun_loss_figure = sun_sensor_loss(plan, tune, report)
+    result = {"paper": "000", "quick": quick, "tuned": tuned, "same_gain": same_gain,
+              "sun_loss": sun_loss, "solvers": solvers,
+              "speed_samples_per_s": {k: float(v) for k, v in benchmark_speed(
+                  report[0].rec, 200_000 if quick else 1_000_000).items()},
+              "speed_in_run_samples_per_s": speed_in_run,
+              "convergence_excluded_s": CONVERGE_S,
+              "elapsed_s": float(time.time() - plan.t_start)}
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        plan.say("figures")
+        _figure_tuned_errors(out_dir, report[0], gains)
+        _figure_same_gain_axes(out_dir, sg_cases[0])
+        _figure_sun_loss(out_dir, *sun_loss_figure)
+        (out_dir / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+    plan.say("done")
+    return result
 
-    def say(msg):
-        if progress:
-            print(f"[p000 {time.time() - t_start:6.1f}s] {msg}", flush=True)
 
-    say("simulating")
-    tune = [_Case(simulate_seed(s, duration)) for s in tune_seeds]
-    report = [_Case(simulate_seed(s, duration)) for s in report_seeds]
+# ------------------------------------------------------------------ explicit vs quaternion CF
+_GAIN_NAMES = {"kp": "kp_rad_s", "ki": "ki_rad_s2"}
 
-    # ---- tuned comparison
-    say("tuning ECF / QCF")
-    ecf_map = {"kp": "kp_rad_s", "ki": "ki_rad_s2"}
-    ecf_tab, qcf_tab = [], []
-    ecf_p, ecf_best = _tune(tune, "ecf", {ecf_map[k]: v for k, v in ECF_GRID.items()},
-                            table=ecf_tab)
-    qcf_p, qcf_best = _tune(tune, "qcf", {ecf_map[k]: v for k, v in QCF_GRID.items()},
-                            table=qcf_tab)
-    say(f"ECF {ecf_p}  QCF {qcf_p}")
+
+def tune_explicit_and_quaternion_cf(plan: _Plan, tune: list) -> tuple[dict, dict]:
+    """The paper's two filters (explicit ECF, QCF driven by the Gauss-Newton q_mes), each
+    tuned on its (K_P, K_I) grid over the tuning seeds: ``({kind: params}, {kind: (table,
+    best mean RMS)})``."""
+    plan.say("tuning ECF / QCF")
+    gains, tables = {}, {}
+    for kind, grid in (("ecf", ECF_GRID), ("qcf", QCF_GRID)):
+        table = []
+        gains[kind], best = _tune(tune, kind, {_GAIN_NAMES[k]: v for k, v in grid.items()},
+                                  table=table)
+        tables[kind] = (table, best)
+    plan.say(f"ECF {gains['ecf']}  QCF {gains['qcf']}")
+    return gains, tables
+
+
+def _gains_out(params: dict) -> dict:
+    return {"kp": params["kp_rad_s"], "ki": params["ki_rad_s2"]}
+
+
+def explicit_vs_quaternion_cf_with_drift_step(plan: _Plan, report: list,
+                                              gains: dict) -> tuple[dict, dict]:
+    """The paper's comparison: both tuned filters on the reporting seeds, RMS after
+    convergence and over the window after the gyro drift step (``tuned``); also each
+    filter's speed within the run (samples per second)."""
     t_kernel = {"ecf": 0.0, "qcf": 0.0}
     n_samples = 0
-    ecf_rms, qcf_rms, ecf_drift, qcf_drift = [], [], [], []
+    rms = {"ecf": [], "qcf": []}
+    drift = {"ecf": [], "qcf": []}
     for c in report:
         t0 = time.perf_counter()
-        qe = c.run("ecf", **ecf_p)
+        qe = c.run("ecf", **gains["ecf"])
         t_kernel["ecf"] += time.perf_counter() - t0
         c.measured()
         t0 = time.perf_counter()
-        qq = c.run("qcf", **qcf_p)
+        qq = c.run("qcf", **gains["qcf"])
         t_kernel["qcf"] += time.perf_counter() - t0
         n_samples += len(c.rec)
-        ee = error_angle_rad(c.rec.q_true, qe)
-        eq = error_angle_rad(c.rec.q_true, qq)
-        ecf_rms.append(_rms_deg(ee, c.mask))
-        qcf_rms.append(_rms_deg(eq, c.mask))
-        ecf_drift.append(_rms_deg(ee, c.drift))
-        qcf_drift.append(_rms_deg(eq, c.drift))
-    ecf_rms, qcf_rms = np.array(ecf_rms), np.array(qcf_rms)
+        for kind, q in (("ecf", qe), ("qcf", qq)):
+            e = error_angle_rad(c.rec.q_true, q)
+            rms[kind].append(_rms_deg(e, c.mask))
+            drift[kind].append(_rms_deg(e, c.drift))
+    ecf_rms, qcf_rms = np.array(rms["ecf"]), np.array(rms["qcf"])
     outage = [float(np.sum(np.diff(c.rec.t, prepend=c.rec.t[0])[~c.rec.sun_valid & c.mask]))
               for c in report]
     tuned = {
         "runs": len(report),
-        "tuning_seeds": tune_seeds, "report_seeds": report_seeds,
-        "ecf": {"kp": ecf_p["kp_rad_s"], "ki": ecf_p["ki_rad_s2"],
-                "mean_rms_deg": float(ecf_rms.mean()),
-                "p95_rms_deg": float(np.percentile(ecf_rms, 95))},
-        "qcf": {"kp": qcf_p["kp_rad_s"], "ki": qcf_p["ki_rad_s2"],
-                "mean_rms_deg": float(qcf_rms.mean()),
-                "p95_rms_deg": float(np.percentile(qcf_rms, 95))},
+        "tuning_seeds": plan.tune_seeds, "report_seeds": plan.report_seeds,
+        **{kind: {**_gains_out(gains[kind]), "mean_rms_deg": float(v.mean()),
+                  "p95_rms_deg": float(np.percentile(v, 95))}
+           for kind, v in (("ecf", ecf_rms), ("qcf", qcf_rms))},
         "ratio_ecf_over_qcf": float(ecf_rms.mean() / qcf_rms.mean()),
         "qcf_better_fraction": float(np.mean(qcf_rms < ecf_rms)),
-        "drift_step": {"ecf_rms_deg": float(np.mean(ecf_drift)),
-                       "qcf_rms_deg": float(np.mean(qcf_drift)),
+        "drift_step": {"ecf_rms_deg": float(np.mean(drift["ecf"])),
+                       "qcf_rms_deg": float(np.mean(drift["qcf"])),
                        "window_s": DRIFT_WINDOW_S},
         # small-error theory: the explicit filter's gain is K_P (I + c cᵀ), the
         # quaternion filter's K_P / 2, so equal bandwidth about b, s needs K_P,qcf = 2 K_P,ecf
-        "kp_ratio_qcf_over_ecf": float(qcf_p["kp_rad_s"] / ecf_p["kp_rad_s"]),
+        "kp_ratio_qcf_over_ecf": float(gains["qcf"]["kp_rad_s"] / gains["ecf"]["kp_rad_s"]),
         # per seed, with the seconds the sun was outside the sensor's field of view (then
         # both filters use the paper's delayed-field substitute)
         "per_seed": {"ecf_rms_deg": ecf_rms.tolist(), "qcf_rms_deg": qcf_rms.tolist(),
@@ -331,219 +387,258 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
             "runs": int(clean.sum()), "ecf_mean_rms_deg": float(ecf_rms[clean].mean()),
             "qcf_mean_rms_deg": float(qcf_rms[clean].mean()),
             "ratio_ecf_over_qcf": float(ecf_rms[clean].mean() / qcf_rms[clean].mean())}
+    return tuned, {k: float(n_samples / v) for k, v in t_kernel.items()}
 
-    # drift-aware choice: within 5 % of each filter's best overall RMS on the tuning seeds,
-    # the gains with the smallest RMS after the drift step
-    drift_tuned = {"tolerance": 0.05}
-    for kind, tab, best_val in (("ecf", ecf_tab, ecf_best), ("qcf", qcf_tab, qcf_best)):
-        p_d = _drift_choice(tab, best_val)
-        all_, dr = [], []
-        for c in report:
-            e = error_angle_rad(c.rec.q_true, c.run(kind, **p_d))
-            all_.append(_rms_deg(e, c.mask))
-            dr.append(_rms_deg(e, c.drift))
-        drift_tuned[kind] = {"kp": p_d["kp_rad_s"], "ki": p_d["ki_rad_s2"],
-                             "mean_rms_deg": float(np.mean(all_)),
-                             "drift_rms_deg": float(np.mean(dr))}
-    tuned["drift_aware"] = drift_tuned
 
-    # for reference: the MEKF (a Kalman filter, not complementary) tuned the same way
-    mk_p, _ = _tune(tune, "mekf", MEKF_SUN_GRID)
-    mk_all, mk_dr = [], []
-    for c in report:
-        e = error_angle_rad(c.rec.q_true, c.run("mekf", **mk_p))
-        mk_all.append(_rms_deg(e, c.mask))
-        mk_dr.append(_rms_deg(e, c.drift))
-    tuned["mekf_reference"] = {"params": mk_p, "mean_rms_deg": float(np.mean(mk_all)),
-                               "p95_rms_deg": float(np.percentile(mk_all, 95)),
-                               "drift_rms_deg": float(np.mean(mk_dr)),
-                               "per_seed_rms_deg": [float(v) for v in mk_all]}
+def _scores(cases: list, kind: str, params: dict) -> tuple[list, list]:
+    """Per case: RMS after convergence and RMS over the drift window (deg)."""
+    rms, drift = [], []
+    for c in cases:
+        e = error_angle_rad(c.rec.q_true, c.run(kind, **params))
+        rms.append(_rms_deg(e, c.mask))
+        drift.append(_rms_deg(e, c.drift))
+    return rms, drift
+
+
+def drift_aware_gains(report: list, tables: dict) -> dict:
+    """A drift-aware choice of gains: within 5 % of each filter's best overall RMS on the
+    tuning seeds, the gains with the smallest RMS after the drift step."""
+    out = {"tolerance": 0.05}
+    for kind in ("ecf", "qcf"):
+        table, best_val = tables[kind]
+        params = _drift_choice(table, best_val)
+        rms, drift = _scores(report, kind, params)
+        out[kind] = {**_gains_out(params), "mean_rms_deg": float(np.mean(rms)),
+                     "drift_rms_deg": float(np.mean(drift))}
+    return out
+
+
+def mekf_for_reference(tune: list, report: list, tuned: dict) -> dict:
+    """For reference: the MEKF (a Kalman filter, not complementary) tuned the same way."""
+    params, _ = _tune(tune, "mekf", MEKF_SUN_GRID)
+    rms, drift = _scores(report, "mekf", params)
+    out = {"params": params, "mean_rms_deg": float(np.mean(rms)),
+           "p95_rms_deg": float(np.percentile(rms, 95)),
+           "drift_rms_deg": float(np.mean(drift)),
+           "per_seed_rms_deg": [float(v) for v in rms]}
+    clean = np.array(tuned["per_seed"]["sun_outage_s"]) == 0
     if clean.any():
-        tuned["mekf_reference"]["without_sun_outage_mean_rms_deg"] = float(
-            np.mean(np.array(mk_all)[clean]))
+        out["without_sun_outage_mean_rms_deg"] = float(np.mean(np.array(rms)[clean]))
+    return out
 
-    # ---- solvers (q_mes itself)
-    say("solvers")
+
+# ------------------------------------------------------------------ QUEST and the other solvers
+def wahba_solvers_as_q_mes(plan: _Plan, report: list, qcf_params: dict) -> dict:
+    """The paper's closing remark: QUEST (and TRIAD, Davenport, SVD) in place of its
+    Gauss-Newton q_mes: the RMS error of q_mes itself and of the QCF it drives."""
+    plan.say("solvers")
     solvers = {}
     for name in SOLVER_NAMES:
         vals, qcf_vals = [], []
         for c in report:
             _, q_mes, ok = c.measured(name)
-            m = c.mask & ok
-            vals.append(_rms_deg(error_angle_rad(c.rec.q_true, q_mes), m))
-            qcf_vals.append(c.score(c.run("qcf", solver=name, **qcf_p)))
+            vals.append(_rms_deg(error_angle_rad(c.rec.q_true, q_mes), c.mask & ok))
+            qcf_vals.append(c.score(c.run("qcf", solver=name, **qcf_params)))
         solvers[name] = {"rms_error_deg": float(np.mean(vals)),
                          "qcf_rms_deg": float(np.mean(qcf_vals))}
+    return solvers
 
-    # ---- same gain, the paper's situation
-    say("same gain")
-    sg = [_Case(simulate_seed(s, duration, SAME_GAIN["mag_noise_nT"])) for s in report_seeds]
-    sg_e, sg_q, ax_e, ax_q = [], [], [], []
-    for c in sg:
-        qe = c.run("ecf", kp_rad_s=SAME_GAIN["kp"], ki_rad_s2=SAME_GAIN["ki"])
-        qq = c.run("qcf", kp_rad_s=SAME_GAIN["kp"], ki_rad_s2=SAME_GAIN["ki"])
-        sg_e.append(c.score(qe))
-        sg_q.append(c.score(qq))
-        ax_e.append(np.degrees(np.sqrt(np.mean(axis_errors_bsc_rad(c.rec, qe)[c.mask] ** 2, 0))))
-        ax_q.append(np.degrees(np.sqrt(np.mean(axis_errors_bsc_rad(c.rec, qq)[c.mask] ** 2, 0))))
+
+# ------------------------------------------------------------------ the paper's situation
+def _axis_rms_deg(c: _Case, q) -> np.ndarray:
+    return np.degrees(np.sqrt(np.mean(axis_errors_bsc_rad(c.rec, q)[c.mask] ** 2, 0)))
+
+
+def both_filters_at_one_high_gain(plan: _Plan) -> tuple[dict, list]:
+    """The paper's situation: both filters at one high gain (``SAME_GAIN``) with the
+    magnetometer noise 1000 nT; the error RMS about b, s⊥ and c = b × s shows why the
+    explicit filter loses (``same_gain``). Also the simulated cases (for the figure)."""
+    plan.say("same gain")
+    kp, ki, noise = SAME_GAIN["kp"], SAME_GAIN["ki"], SAME_GAIN["mag_noise_nT"]
+    cases = [_Case(simulate_seed(s, plan.duration, noise)) for s in plan.report_seeds]
+    rms_e, rms_q, ax_e, ax_q = [], [], [], []
+    for c in cases:
+        qe = c.run("ecf", kp_rad_s=kp, ki_rad_s2=ki)
+        qq = c.run("qcf", kp_rad_s=kp, ki_rad_s2=ki)
+        rms_e.append(c.score(qe))
+        rms_q.append(c.score(qq))
+        ax_e.append(_axis_rms_deg(c, qe))
+        ax_q.append(_axis_rms_deg(c, qq))
     ax_e, ax_q = np.mean(ax_e, 0), np.mean(ax_q, 0)
-    kp = SAME_GAIN["kp"]
     # discrete first-order loop x+ = (1 - g) x + g n: noise variance factor g / (2 - g)
     loop = {"ecf_b": kp, "ecf_s": kp, "ecf_c": 2 * kp, "qcf": kp / 2}
-    # how the ratio depends on the unknown gain and noise (K_I scaled as K_P² / 72)
-    sweep = []
-    for noise in ([SAME_GAIN["mag_noise_nT"]] if quick else [300.0, SAME_GAIN["mag_noise_nT"]]):
-        cases = sg if noise == SAME_GAIN["mag_noise_nT"] else [
-            _Case(simulate_seed(sd, duration, noise)) for sd in report_seeds[:8]]
-        for kp_s in ([0.2, 0.85] if quick else [0.1, 0.2, 0.4, 0.6, 0.85, 0.95]):
-            ki_s = kp_s ** 2 / 72.0
-            e_ = np.mean([c.score(c.run("ecf", kp_rad_s=kp_s, ki_rad_s2=ki_s)) for c in cases])
-            q_ = np.mean([c.score(c.run("qcf", kp_rad_s=kp_s, ki_rad_s2=ki_s)) for c in cases])
-            sweep.append({"kp": kp_s, "ki": ki_s, "mag_noise_nT": noise, "runs": len(cases),
-                          "ecf_rms_deg": float(e_), "qcf_rms_deg": float(q_),
-                          "ratio_ecf_over_qcf": float(e_ / q_)})
-    same_gain = {
-        "sweep": sweep,
-        "kp": kp, "ki": SAME_GAIN["ki"], "mag_noise_nT": SAME_GAIN["mag_noise_nT"],
-        "ecf_rms_deg": float(np.mean(sg_e)), "qcf_rms_deg": float(np.mean(sg_q)),
-        "ratio_ecf_over_qcf": float(np.mean(sg_e) / np.mean(sg_q)),
+    return {
+        "sweep": _same_gain_sweep(plan, cases),
+        "kp": kp, "ki": ki, "mag_noise_nT": noise,
+        "ecf_rms_deg": float(np.mean(rms_e)), "qcf_rms_deg": float(np.mean(rms_q)),
+        "ratio_ecf_over_qcf": float(np.mean(rms_e) / np.mean(rms_q)),
         "axis_rms_deg": {"ecf": dict(zip("bsc", map(float, ax_e), strict=True)),
                          "qcf": dict(zip("bsc", map(float, ax_q), strict=True))},
         "loop_gain_per_sample": loop,
         "noise_variance_factor": {k: float(g / (2 - g)) for k, g in loop.items()},
-    }
+    }, cases
 
-    # ---- sun loss
-    say("sun loss")
+
+def _same_gain_sweep(plan: _Plan, cases_1000nT: list) -> list:
+    """How the ratio depends on the unknown gain and noise (K_I scaled as K_P² / 72)."""
+    sweep = []
+    noises = [SAME_GAIN["mag_noise_nT"]] if plan.quick else [300.0, SAME_GAIN["mag_noise_nT"]]
+    for noise in noises:
+        cases = cases_1000nT if noise == SAME_GAIN["mag_noise_nT"] else [
+            _Case(simulate_seed(sd, plan.duration, noise)) for sd in plan.report_seeds[:8]]
+        for kp in ([0.2, 0.85] if plan.quick else [0.1, 0.2, 0.4, 0.6, 0.85, 0.95]):
+            ki = kp ** 2 / 72.0
+            e_ = np.mean([c.score(c.run("ecf", kp_rad_s=kp, ki_rad_s2=ki)) for c in cases])
+            q_ = np.mean([c.score(c.run("qcf", kp_rad_s=kp, ki_rad_s2=ki)) for c in cases])
+            sweep.append({"kp": kp, "ki": ki, "mag_noise_nT": noise, "runs": len(cases),
+                          "ecf_rms_deg": float(e_), "qcf_rms_deg": float(q_),
+                          "ratio_ecf_over_qcf": float(e_ / q_)})
+    return sweep
+
+
+# ------------------------------------------------------------------ sun-sensor loss
+_RPY = ("roll", "pitch", "yaw")
+
+
+def _tune_qcf_substitute(cases: list, substitute: str = "delayed") -> dict:
+    """The QCF with a substitute for the lost sun pair (``delayed``: the paper's, M = 500),
+    tuned on ``SUN_LOSS_GRID``."""
+    params, _ = _tune(cases, "qcf", {"kp_rad_s": SUN_LOSS_GRID["kp"],
+                                     "ki_rad_s2": SUN_LOSS_GRID["ki"]},
+                      fixed={"sun_substitute": substitute, "delay_samples": 500,
+                             "kp_single_rad_s": 0.0, "ki_single_rad_s2": 0.0})
+    return params
+
+
+def _tune_hybrid_mekf(cases: list) -> dict:
+    """gnomon's MEKF: magnetometer + gyro plus the swing-weighted delayed pair."""
+    params, _ = _tune(cases, "mekf", HYBRID_GRID,
+                      fixed={"sun_substitute": "delayed", "delay_samples": 500})
+    return params
+
+
+def _sun_loss_stats(cases: list, kind: str, params: dict) -> tuple[dict, np.ndarray]:
+    """RMS, per-seed maximum per Euler angle (mean and worst), the fraction of seeds within
+    the paper's bound (5°, 5°, 10°); also the true attitude's amplitude (deg, per angle)."""
+    rms, mx, amp = [], [], []
+    for c in cases:
+        q = c.run(kind, **params)
+        rms.append(c.score(q))
+        mx.append(np.degrees(np.abs(axis_errors_rad(c.rec.q_true, q)[c.mask]).max(0)))
+        amp.append(np.degrees(np.abs(axis_errors_rad(
+            np.array([1.0, 0, 0, 0]), c.rec.q_true)[c.mask]).max(0)))
+    mx = np.array(mx)
+    return {"rms_deg": float(np.mean(rms)),
+            "max_abs_error_deg": dict(zip(_RPY, map(float, mx.mean(0)), strict=True)),
+            "max_abs_error_deg_worst": dict(zip(_RPY, map(float, mx.max(0)), strict=True)),
+            "rms_deg_worst": float(np.max(rms)),
+            "within_paper_bound_fraction": float(np.mean(
+                (mx[:, 0] <= 5) & (mx[:, 1] <= 5) & (mx[:, 2] <= 10))),
+            "params": params}, np.mean(amp, 0)
+
+
+def sun_sensor_loss(plan: _Plan, tune: list, report: list) -> tuple[dict, tuple]:
+    """The paper's sun-sensor loss: the sun lost for the whole run (drift step inside),
+    the paper's delayed-field substitute (M = 500) in the QCF, the spec's gyro-carried
+    delayed pair, gnomon's MEKF with and without the delayed pair, and the dependence on
+    the satellite's swing (``sun_loss``). Also what the figure needs."""
+    plan.say("sun loss")
     tune_sl = [_Case(c.rec, sun_lost=True) for c in tune]
     report_sl = [_Case(c.rec, sun_lost=True) for c in report]
-    pap_p, _ = _tune(tune_sl, "qcf", {"kp_rad_s": SUN_LOSS_GRID["kp"],
-                                      "ki_rad_s2": SUN_LOSS_GRID["ki"]},
-                     fixed={"sun_substitute": "delayed", "delay_samples": 500,
-                            "kp_single_rad_s": 0.0, "ki_single_rad_s2": 0.0})
-    mekf_p, _ = _tune(tune_sl, "mekf", HYBRID_GRID,
-                      fixed={"sun_substitute": "delayed", "delay_samples": 500})
+    paper_p = _tune_qcf_substitute(tune_sl)
+    mekf_p = _tune_hybrid_mekf(tune_sl)
     mag_only_p, _ = _tune(tune_sl, "mekf", MEKF_GRID, fixed={"sun_substitute": "none"})
-    say(f"paper {pap_p} improved {mekf_p}")
+    plan.say(f"paper {paper_p} improved {mekf_p}")
+    gyro_p = _tune_qcf_substitute(tune_sl, "delayed-gyro")
+    delayed_gyro, _ = _sun_loss_stats(report_sl, "qcf", gyro_p)
+    delayed_gyro["method"] = "qcf with the delayed field pair carried to t by the raw gyro (spec)"
+    paper, amp = _sun_loss_stats(report_sl, "qcf", paper_p)
+    improved, _ = _sun_loss_stats(report_sl, "mekf", mekf_p)
+    improved["method"] = ("mekf-delayed: magnetometer + gyro MEKF (bias from the turning "
+                          "field) plus the paper's delayed pair weighted by the estimated "
+                          "swing over M samples")
+    mag_only, _ = _sun_loss_stats(report_sl, "mekf", mag_only_p)
+    mag_only["method"] = "mekf-delayed with the magnetometer pair alone"
+    paper["method"] = "qcf with S = B delayed by M = 500 samples (paper)"
+    sweep = sun_loss_vs_swing_amplitude(plan, mekf_p, mag_only_p)
+    return {"paper": paper, "improved": improved, "delayed_gyro": delayed_gyro,
+            "mekf_mag_only": mag_only,
+            "amplitude_sweep": sweep,
+            "true_attitude_amplitude_deg": dict(zip(_RPY, map(float, amp), strict=True)),
+            "outage": "sun_valid false for the whole run (drift step inside)"}, (
+        report_sl[0], paper_p, mekf_p)
 
-    def sun_loss_stats(kind, params, cases=None):
-        rms, mx, amp = [], [], []
-        for c in (report_sl if cases is None else cases):
-            q = c.run(kind, **params)
-            rms.append(c.score(q))
-            mx.append(np.degrees(np.abs(axis_errors_rad(c.rec.q_true, q)[c.mask]).max(0)))
-            amp.append(np.degrees(np.abs(axis_errors_rad(
-                np.array([1.0, 0, 0, 0]), c.rec.q_true)[c.mask]).max(0)))
-        mx = np.array(mx)
-        return {"rms_deg": float(np.mean(rms)),
-                "max_abs_error_deg": dict(zip(("roll", "pitch", "yaw"), map(float, mx.mean(0)),
-                                              strict=True)),
-                "max_abs_error_deg_worst": dict(zip(("roll", "pitch", "yaw"),
-                                                    map(float, mx.max(0)), strict=True)),
-                "rms_deg_worst": float(np.max(rms)),
-                "within_paper_bound_fraction": float(np.mean(
-                    (mx[:, 0] <= 5) & (mx[:, 1] <= 5) & (mx[:, 2] <= 10))),
-                "params": params}, np.mean(amp, 0)
 
-    dg_p, _ = _tune(tune_sl, "qcf", {"kp_rad_s": SUN_LOSS_GRID["kp"],
-                                     "ki_rad_s2": SUN_LOSS_GRID["ki"]},
-                    fixed={"sun_substitute": "delayed-gyro", "delay_samples": 500,
-                           "kp_single_rad_s": 0.0, "ki_single_rad_s2": 0.0})
-    dg_sl, _ = sun_loss_stats("qcf", dg_p)
-    dg_sl["method"] = "qcf with the delayed field pair carried to t by the raw gyro (spec)"
-    paper_sl, amp = sun_loss_stats("qcf", pap_p)
-    improved_sl, _ = sun_loss_stats("mekf", mekf_p)
-    improved_sl["method"] = ("mekf-delayed: magnetometer + gyro MEKF (bias from the turning "
-                             "field) plus the paper's delayed pair weighted by the estimated "
-                             "swing over M samples")
-    mag_only_sl, _ = sun_loss_stats("mekf", mag_only_p)
-    mag_only_sl["method"] = "mekf-delayed with the magnetometer pair alone"
-    paper_sl["method"] = "qcf with S = B delayed by M = 500 samples (paper)"
-    # how the paper's bound depends on the satellite's swing (unknown in the paper): the
-    # paper's method and the hybrid MEKF retuned at each amplitude on the tuning seeds
-    # (``improved_preset_gains``: the MEKF with the gains tuned on the preset)
-    say("sun loss vs amplitude")
+def sun_loss_vs_swing_amplitude(plan: _Plan, mekf_p: dict, mag_only_p: dict) -> list:
+    """How the paper's bound depends on the satellite's swing (unknown in the paper): the
+    paper's method and the hybrid MEKF retuned at each amplitude on the tuning seeds
+    (``improved_preset_gains``: the MEKF with the gains tuned on the preset)."""
+    plan.say("sun loss vs amplitude")
     sweep = []
-    for scale in ([0.0] if quick else MOTION_SCALES):
-        t_cases = [_Case(simulate_seed(sd, duration, motion_scale=scale), sun_lost=True)
-                   for sd in tune_seeds]
-        r_cases = [_Case(simulate_seed(sd, duration, motion_scale=scale), sun_lost=True)
-                   for sd in report_seeds[:8]]
-        p_s, _ = _tune(t_cases, "qcf", {"kp_rad_s": SUN_LOSS_GRID["kp"],
-                                        "ki_rad_s2": SUN_LOSS_GRID["ki"]},
-                       fixed={"sun_substitute": "delayed", "delay_samples": 500,
-                              "kp_single_rad_s": 0.0, "ki_single_rad_s2": 0.0})
-        h_s, _ = _tune(t_cases, "mekf", HYBRID_GRID,
-                       fixed={"sun_substitute": "delayed", "delay_samples": 500})
+    for scale in ([0.0] if plan.quick else MOTION_SCALES):
+        t_cases = [_Case(simulate_seed(sd, plan.duration, motion_scale=scale), sun_lost=True)
+                   for sd in plan.tune_seeds]
+        r_cases = [_Case(simulate_seed(sd, plan.duration, motion_scale=scale), sun_lost=True)
+                   for sd in plan.report_seeds[:8]]
+        p_s = _tune_qcf_substitute(t_cases)
+        h_s = _tune_hybrid_mekf(t_cases)
         row = {"motion_scale": scale, "runs": len(r_cases)}
         for label, kind, params in (("paper", "qcf", p_s), ("improved", "mekf", h_s),
                                     ("improved_preset_gains", "mekf", mekf_p),
                                     ("mekf_mag_only", "mekf", mag_only_p)):
-            st, amp_s = sun_loss_stats(kind, params, r_cases)
+            st, amp_s = _sun_loss_stats(r_cases, kind, params)
             row[label] = {k: st[k] for k in ("rms_deg", "max_abs_error_deg",
                                              "max_abs_error_deg_worst",
                                              "within_paper_bound_fraction")}
             row[label]["params"] = params
-        row["true_attitude_amplitude_deg"] = dict(zip(("roll", "pitch", "yaw"),
-                                                      map(float, amp_s), strict=True))
+        row["true_attitude_amplitude_deg"] = dict(zip(_RPY, map(float, amp_s), strict=True))
         sweep.append(row)
-    sun_loss = {"paper": paper_sl, "improved": improved_sl, "delayed_gyro": dg_sl,
-                "mekf_mag_only": mag_only_sl,
-                "amplitude_sweep": sweep,
-                "true_attitude_amplitude_deg": dict(zip(("roll", "pitch", "yaw"),
-                                                        map(float, amp), strict=True)),
-                "outage": "sun_valid false for the whole run (drift step inside)"}
-
-    result = {"paper": "000", "quick": quick, "tuned": tuned, "same_gain": same_gain,
-              "sun_loss": sun_loss, "solvers": solvers,
-              "speed_samples_per_s": {k: float(v) for k, v in benchmark_speed(
-                  report[0].rec, 200_000 if quick else 1_000_000).items()},
-              "speed_in_run_samples_per_s": {k: float(n_samples / v)
-                                             for k, v in t_kernel.items()},
-              "convergence_excluded_s": CONVERGE_S,
-              "elapsed_s": float(time.time() - t_start)}
-    if out_dir is not None:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        say("figures")
-        _figures(out_dir, report[0], ecf_p, qcf_p, sg[0], report_sl[0], pap_p, mekf_p)
-        (out_dir / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
-    say("done")
-    return result
+    return sweep
 
 
-def _figures(out_dir, case, ecf_p, qcf_p, sg_case, sl_case, pap_p, mekf_p):
+# ------------------------------------------------------------------ figures
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = ("roll", "pitch", "yaw")
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _pyplot().close(fig)
+
+
+def _figure_tuned_errors(out_dir: Path, case: _Case, gains: dict) -> None:
+    """The paper's figure: the tuned filters' attitude errors over time, the drift step."""
+    fig, axes = _pyplot().subplots(3, 1, figsize=(9, 7), sharex=True)
     t_orb = case.rec.extra["time_orbits"]
-    # 1. tuned filters over time with the drift step
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
-    for kind, params, col in (("ecf", ecf_p, "C0"), ("qcf", qcf_p, "C3")):
+    for kind, col in (("ecf", "C0"), ("qcf", "C3")):
+        params = gains[kind]
         err = np.degrees(axis_errors_rad(case.rec.q_true, case.run(kind, **params)))
         for k in range(3):
             lab = f"{kind.upper()} Kp={params['kp_rad_s']:g} Ki={params['ki_rad_s2']:g}"
             axes[k].plot(t_orb, err[:, k], col, lw=0.7, label=lab)
     for k in range(3):
         axes[k].axvline(np.interp(case.t_step, case.rec.t, t_orb), color="k", ls="--", lw=0.8)
-        axes[k].set_ylabel(f"{names[k]} error (deg)")
+        axes[k].set_ylabel(f"{_RPY[k]} error (deg)")
         axes[k].set_ylim(-1.5, 1.5)
     axes[0].legend(fontsize=8)
     axes[0].set_title("Seed 000, tuned filters: attitude errors (dashed: gyro drift step)")
     axes[-1].set_xlabel("time (orbits)")
-    fig.tight_layout()
-    fig.savefig(out_dir / "p000_tuned_errors.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "p000_tuned_errors.png")
 
-    # 2. same gain: errors about b, s, c
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
-    t2 = sg_case.rec.extra["time_orbits"]
+
+def _figure_same_gain_axes(out_dir: Path, case: _Case) -> None:
+    """Same gain: the errors about b, s⊥ and c."""
+    fig, axes = _pyplot().subplots(3, 1, figsize=(9, 7), sharex=True)
+    t2 = case.rec.extra["time_orbits"]
     for kind, col in (("ecf", "C0"), ("qcf", "C3")):
-        q = sg_case.run(kind, kp_rad_s=SAME_GAIN["kp"], ki_rad_s2=SAME_GAIN["ki"])
-        err = np.degrees(axis_errors_bsc_rad(sg_case.rec, q))
+        q = case.run(kind, kp_rad_s=SAME_GAIN["kp"], ki_rad_s2=SAME_GAIN["ki"])
+        err = np.degrees(axis_errors_bsc_rad(case.rec, q))
         for k, lab in enumerate(("b (field)", "s⊥ (sun)", "c = b × s")):
             axes[k].plot(t2, err[:, k], col, lw=0.5, label=kind.upper())
             axes[k].set_ylabel(f"about {lab} (deg)")
@@ -551,27 +646,25 @@ def _figures(out_dir, case, ecf_p, qcf_p, sg_case, sl_case, pap_p, mekf_p):
     axes[0].set_title(f"Same gain Kp={SAME_GAIN['kp']}, Ki={SAME_GAIN['ki']}, mag noise "
                       f"{SAME_GAIN['mag_noise_nT']:g} nT: ECF gain Kp(I+ccᵀ) vs QCF Kp/2")
     axes[-1].set_xlabel("time (orbits)")
-    fig.tight_layout()
-    fig.savefig(out_dir / "p000_same_gain_axes.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "p000_same_gain_axes.png")
 
-    # 3. sun loss
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
-    t3 = sl_case.rec.extra["time_orbits"]
-    for kind, params, col, lab in (("qcf", pap_p, "C1", "paper: delayed field M=500"),
+
+def _figure_sun_loss(out_dir: Path, case: _Case, paper_p: dict, mekf_p: dict) -> None:
+    """Sun sensor lost: the paper's delayed field and gnomon's MEKF, the paper's bounds."""
+    fig, axes = _pyplot().subplots(3, 1, figsize=(9, 7), sharex=True)
+    t3 = case.rec.extra["time_orbits"]
+    for kind, params, col, lab in (("qcf", paper_p, "C1", "paper: delayed field M=500"),
                                    ("mekf", mekf_p, "C2",
                                     "gnomon: MEKF, mag + swing-weighted delayed pair")):
-        err = np.degrees(axis_errors_rad(sl_case.rec.q_true, sl_case.run(kind, **params)))
+        err = np.degrees(axis_errors_rad(case.rec.q_true, case.run(kind, **params)))
         for k in range(3):
             axes[k].plot(t3, err[:, k], col, lw=0.7, label=lab)
     for k, bound in enumerate((5, 5, 10)):
         axes[k].axhline(bound, color="k", ls=":", lw=0.8)
         axes[k].axhline(-bound, color="k", ls=":", lw=0.8)
-        axes[k].axvline(np.interp(sl_case.t_step, sl_case.rec.t, t3), color="k", ls="--", lw=0.8)
-        axes[k].set_ylabel(f"{names[k]} error (deg)")
+        axes[k].axvline(np.interp(case.t_step, case.rec.t, t3), color="k", ls="--", lw=0.8)
+        axes[k].set_ylabel(f"{_RPY[k]} error (deg)")
     axes[0].legend(fontsize=8)
     axes[0].set_title("Sun sensor lost for the whole run (dotted: paper's bounds)")
     axes[-1].set_xlabel("time (orbits)")
-    fig.tight_layout()
-    fig.savefig(out_dir / "p000_sun_loss.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "p000_sun_loss.png")

@@ -29,7 +29,9 @@ run's eclipse peak; ``eclipse_max_worst_deg`` the worst seed.
 
 from __future__ import annotations
 
+import contextlib
 import pathlib
+import shutil
 import tempfile
 
 import numpy as np
@@ -102,16 +104,98 @@ def _accepts(key: str) -> bool:
 case_task = Task(_case, accepts=_accepts, name="gnomon.reproduce.p001:case_task")
 
 
-def _campaign(name, vary, seeds, filters, base, root, **kw):
-    res = run_campaign(SCENARIO, seeds, base / name, vary, root_seed=root,
-                       task="gnomon.reproduce.p001:case_task",
-                       task_options={"filters": list(filters)}, **kw)
-    t = res.table
-    bad = t[t["status"] != "ok"]
-    if len(bad):
-        raise RuntimeError(f"campaign {name}: {len(bad)} runs failed, first: "
-                           f"{bad['error'].iloc[0]}")
-    return t
+_EKF = ("ekf-spacecraft",)
+_BOTH = ("ekf-spacecraft", "mekf-spacecraft")
+
+
+class _Campaigns:
+    """The experiments' campaigns: ``seeds`` runs each, in ``base/<name>``; ``runs`` counts
+    the runs of all of them."""
+
+    def __init__(self, seeds: int, base: pathlib.Path, root_seed: int, options: dict):
+        self.seeds, self.base, self.root_seed, self.options = seeds, base, root_seed, options
+        self.runs = 0
+
+    def __call__(self, name: str, vary: dict, filters=_EKF):
+        res = run_campaign(SCENARIO, self.seeds, self.base / name, vary,
+                           root_seed=self.root_seed, task="gnomon.reproduce.p001:case_task",
+                           task_options={"filters": list(filters)}, **self.options)
+        t = res.table
+        bad = t[t["status"] != "ok"]
+        if len(bad):
+            raise RuntimeError(f"campaign {name}: {len(bad)} runs failed, first: "
+                               f"{bad['error'].iloc[0]}")
+        self.runs += len(t)
+        return t
+
+
+@contextlib.contextmanager
+def _campaign_root(out_dir: pathlib.Path | None):
+    """Where the campaigns go: ``out_dir/campaigns`` (emptied first), or a temporary
+    folder removed afterwards."""
+    if out_dir is None:
+        with tempfile.TemporaryDirectory(prefix="gnomon-p001-") as tmp:
+            yield pathlib.Path(tmp)
+        return
+    base = pathlib.Path(out_dir) / "campaigns"
+    if base.exists():
+        shutil.rmtree(base)
+    base.mkdir(parents=True, exist_ok=True)
+    yield base
+
+
+def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool = False, *,
+        seeds: int | None = None, executor: str = "local", workers: int | None = None,
+        scheduler: str | None = None, root_seed: int = 1) -> dict:
+    """Run the experiments, in the paper's order; returns the issue-5 JSON-contract dict
+    (figures in ``out_dir``).
+
+    ``quick``: 4 seeds per case (else 20) — for CI. ``executor``/``workers``/``scheduler``
+    as in :func:`gnomon.campaign.run_campaign`.
+    """
+    n = int(seeds) if seeds else (4 if quick else 20)
+    if n < 1:
+        raise InputError(f"must be >= 1, got {seeds!r}", field="seeds")
+    options = {"executor": executor, "workers": workers, "scheduler": scheduler,
+               "progress": progress}
+    with _campaign_root(out_dir) as base:
+        campaign = _Campaigns(n, base, root_seed, options)
+        res = {"paper": "001", "ideal": ideal_conditions(campaign)}
+        sensitivity, error_models = sensitivity_one_source_at_a_time(campaign)
+        res["ideal_noisy"] = ideal_with_sensor_noise(campaign)
+        res["sensitivity"] = sensitivity
+        res["inertia_tumbling"] = inertia_error_tumbling(campaign)
+        res["error_models"] = error_models
+        geometry, eclipse = eclipse_with_and_without_gyros(campaign)
+        res["geometry"] = geometry
+        res["eclipse"] = eclipse
+        res["runs"] = int(campaign.runs)
+        res["seeds_per_case"] = n
+        res["targets"] = _targets(res)
+        if out_dir is not None:
+            import json
+
+            _figures(pathlib.Path(out_dir), root_seed, min(n, 5))
+            (pathlib.Path(out_dir) / "metrics.json").write_text(json.dumps(res, indent=2))
+        return res
+
+
+def _summary(t) -> dict:
+    return {"rms_deg": float(np.sqrt(np.mean(t["ekf-spacecraft.rms_deg"] ** 2))),
+            "max_error_deg": float(t["ekf-spacecraft.max_deg"].mean()),
+            "mean_error_deg": float(t["ekf-spacecraft.mean_deg"].mean()),
+            "max_error_worst_deg": float(t["ekf-spacecraft.max_deg"].max())}
+
+
+def ideal_conditions(campaign: _Campaigns) -> dict:
+    """Experiment 1: exact models, noise-free sensors, no eclipse (``ideal``)."""
+    return _summary(campaign("ideal", dict(_IDEAL)))
+
+
+def ideal_with_sensor_noise(campaign: _Campaigns) -> dict:
+    """Experiment 1 with the scenario's sensor noise, no eclipse: the baseline of the
+    sensitivity runs (``ideal_noisy``)."""
+    return _summary(campaign("ideal-noisy", dict(_SUNLIT)))
 
 
 def _stats(t, f="ekf-spacecraft") -> dict:
@@ -121,117 +205,68 @@ def _stats(t, f="ekf-spacecraft") -> dict:
             "rms_deg": float(np.sqrt(np.mean(t[f"{f}.rms_deg"].to_numpy() ** 2)))}
 
 
-def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool = False, *,
-        seeds: int | None = None, executor: str = "local", workers: int | None = None,
-        scheduler: str | None = None, root_seed: int = 1) -> dict:
-    """Run the experiments; returns the issue-5 JSON-contract dict (figures in ``out_dir``).
+def sensitivity_one_source_at_a_time(campaign: _Campaigns) -> tuple[dict, dict]:
+    """Experiment 2: one source at a time (inertia, field model, sun sensor), with the
+    sensor noise and no eclipse: each source's default model at 2 % and 10 %
+    (``sensitivity``) and every model at 10 % (``error_models``)."""
+    sens, models = {}, {}
+    for source in MODELS:
+        sens[source] = {}
+        models[source] = {}
+        for model in MODELS[source]:
+            levels = (2, 10) if model == DEFAULT_MODEL[source] else (10,)
+            for level in levels:
+                vary = dict(_SUNLIT)
+                vary.update({"uncertainty.source": source, "uncertainty.model": model,
+                             "uncertainty.level_pct": str(level)})
+                st = _stats(campaign(f"{source}-{model}-{level}", vary))
+                if model == DEFAULT_MODEL[source]:
+                    sens[source][str(level)] = st
+                if level == 10:
+                    models[source][model] = {"level_pct": 10.0,
+                                             "mean_peak_error_deg": st["mean_peak_error_deg"],
+                                             "rms_deg": st["rms_deg"]}
+    return sens, models
 
-    ``quick``: 4 seeds per case (else 20) — for CI. ``executor``/``workers``/``scheduler``
-    as in :func:`gnomon.campaign.run_campaign`.
-    """
-    n = int(seeds) if seeds else (4 if quick else 20)
-    if n < 1:
-        raise InputError(f"must be >= 1, got {seeds!r}", field="seeds")
-    kw = {"executor": executor, "workers": workers, "scheduler": scheduler,
-          "progress": progress}
-    tmp = None
-    if out_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="gnomon-p001-")
-        base = pathlib.Path(tmp.name)
-    else:
-        base = pathlib.Path(out_dir) / "campaigns"
-        if base.exists():
-            import shutil
 
-            shutil.rmtree(base)
-    base.mkdir(parents=True, exist_ok=True)
-    ekf = ("ekf-spacecraft",)
-    both = ("ekf-spacecraft", "mekf-spacecraft")
-    try:
-        total = 0
-        ideal = _campaign("ideal", dict(_IDEAL), n, ekf, base, root_seed, **kw)
-        total += len(ideal)
-        res = {"paper": "001"}
-        res["ideal"] = {
-            "rms_deg": float(np.sqrt(np.mean(ideal["ekf-spacecraft.rms_deg"] ** 2))),
-            "max_error_deg": float(ideal["ekf-spacecraft.max_deg"].mean()),
-            "mean_error_deg": float(ideal["ekf-spacecraft.mean_deg"].mean()),
-            "max_error_worst_deg": float(ideal["ekf-spacecraft.max_deg"].max()),
-        }
-        sens, models = {}, {}
-        for source in MODELS:
-            sens[source] = {}
-            models[source] = {}
-            for model in MODELS[source]:
-                levels = (2, 10) if model == DEFAULT_MODEL[source] else (10,)
-                for level in levels:
-                    vary = dict(_SUNLIT)
-                    vary.update({"uncertainty.source": source, "uncertainty.model": model,
-                                 "uncertainty.level_pct": str(level)})
-                    t = _campaign(f"{source}-{model}-{level}", vary, n, ekf, base, root_seed,
-                                  **kw)
-                    total += len(t)
-                    st = _stats(t)
-                    if model == DEFAULT_MODEL[source]:
-                        sens[source][str(level)] = st
-                    if level == 10:
-                        models[source][model] = {"level_pct": 10.0,
-                                                 "mean_peak_error_deg": st["mean_peak_error_deg"],
-                                                 "rms_deg": st["rms_deg"]}
-        noisy = _campaign("ideal-noisy", dict(_SUNLIT), n, ekf, base, root_seed, **kw)
-        total += len(noisy)
-        res["ideal_noisy"] = {
-            "rms_deg": float(np.sqrt(np.mean(noisy["ekf-spacecraft.rms_deg"] ** 2))),
-            "max_error_deg": float(noisy["ekf-spacecraft.max_deg"].mean()),
-            "mean_error_deg": float(noisy["ekf-spacecraft.mean_deg"].mean()),
-            "max_error_worst_deg": float(noisy["ekf-spacecraft.max_deg"].max()),
-        }
-        res["sensitivity"] = sens
-        tumbling = {}
-        for level in (0, 2, 10):
-            vary = dict(_TUMBLING)
-            vary.update({"uncertainty.source": "inertia", "uncertainty.level_pct": str(level)})
-            t = _campaign(f"inertia-tumbling-{level}", vary, n, both, base, root_seed, **kw)
-            total += len(t)
-            tumbling[str(level)] = {**_stats(t), "mekf_rms_deg": _stats(t, "mekf-spacecraft")[
-                "rms_deg"]}
-            tumbling["rate_ob_rms_deg_s"] = float(t["rate_ob_rms_deg_s"].mean())
-        res["inertia_tumbling"] = tumbling
-        res["error_models"] = models
-        ecl = _campaign("eclipse", {}, n, both, base, root_seed, **kw)
-        f10 = {"uncertainty.source": "field_model", "uncertainty.level_pct": "10"}
-        ecl10 = _campaign("eclipse-field10", f10, n, both, base, root_seed, **kw)
-        total += len(ecl) + len(ecl10)
-        res["geometry"] = {k: float(ecl[k].mean()) for k in
-                           ("beta_deg", "min_sun_field_angle_deg", "eclipse_fraction",
-                            "rate_ob_rms_deg_s")}
-        res["geometry"]["min_sun_field_angle_worst_deg"] = float(
-            ecl["min_sun_field_angle_deg"].min())
+def inertia_error_tumbling(campaign: _Campaigns) -> dict:
+    """The inertia error (0, 2, 10 %) on a freely tumbling spacecraft (no control,
+    ~0.7 deg/s), where the dynamics model matters; EKF and MEKF (``inertia_tumbling``)."""
+    tumbling = {}
+    for level in (0, 2, 10):
+        vary = dict(_TUMBLING)
+        vary.update({"uncertainty.source": "inertia", "uncertainty.level_pct": str(level)})
+        t = campaign(f"inertia-tumbling-{level}", vary, _BOTH)
+        tumbling[str(level)] = {**_stats(t),
+                                "mekf_rms_deg": _stats(t, "mekf-spacecraft")["rms_deg"]}
+        tumbling["rate_ob_rms_deg_s"] = float(t["rate_ob_rms_deg_s"].mean())
+    return tumbling
 
-        def ecl_stats(t, f):
-            return {"sunlit_rms_deg": float(np.sqrt(np.mean(t[f"{f}.sunlit_rms_deg"] ** 2))),
-                    "eclipse_rms_deg": float(np.sqrt(np.mean(t[f"{f}.eclipse_rms_deg"] ** 2))),
-                    "eclipse_max_deg": float(t[f"{f}.eclipse_max_deg"].mean()),
-                    "eclipse_max_worst_deg": float(t[f"{f}.eclipse_max_deg"].max())}
 
-        res["eclipse"] = {
-            "ekf": ecl_stats(ecl, "ekf-spacecraft"),
-            "mekf": ecl_stats(ecl, "mekf-spacecraft"),
-            "ekf_field10": ecl_stats(ecl10, "ekf-spacecraft"),
-            "mekf_field10": ecl_stats(ecl10, "mekf-spacecraft"),
-        }
-        res["runs"] = int(total)
-        res["seeds_per_case"] = n
-        res["targets"] = _targets(res)
-        if out_dir is not None:
-            import json
+def _eclipse_stats(t, f) -> dict:
+    return {"sunlit_rms_deg": float(np.sqrt(np.mean(t[f"{f}.sunlit_rms_deg"] ** 2))),
+            "eclipse_rms_deg": float(np.sqrt(np.mean(t[f"{f}.eclipse_rms_deg"] ** 2))),
+            "eclipse_max_deg": float(t[f"{f}.eclipse_max_deg"].mean()),
+            "eclipse_max_worst_deg": float(t[f"{f}.eclipse_max_deg"].max())}
 
-            _figures(pathlib.Path(out_dir), root_seed, min(n, 5))
-            (pathlib.Path(out_dir) / "metrics.json").write_text(json.dumps(res, indent=2))
-        return res
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
+
+def eclipse_with_and_without_gyros(campaign: _Campaigns) -> tuple[dict, dict]:
+    """Experiment 3: the scenario as is (sensor noise, eclipse), the paper's gyro-less EKF
+    and the gyro-aided MEKF, with the exact field model and with a 10 % field-model error:
+    the orbit's ``geometry`` and the ``eclipse`` scores."""
+    ecl = campaign("eclipse", {}, _BOTH)
+    f10 = {"uncertainty.source": "field_model", "uncertainty.level_pct": "10"}
+    ecl10 = campaign("eclipse-field10", f10, _BOTH)
+    geometry = {k: float(ecl[k].mean()) for k in
+                ("beta_deg", "min_sun_field_angle_deg", "eclipse_fraction",
+                 "rate_ob_rms_deg_s")}
+    geometry["min_sun_field_angle_worst_deg"] = float(ecl["min_sun_field_angle_deg"].min())
+    return geometry, {
+        "ekf": _eclipse_stats(ecl, "ekf-spacecraft"),
+        "mekf": _eclipse_stats(ecl, "mekf-spacecraft"),
+        "ekf_field10": _eclipse_stats(ecl10, "ekf-spacecraft"),
+        "mekf_field10": _eclipse_stats(ecl10, "mekf-spacecraft"),
+    }
 
 
 def _targets(res) -> dict:

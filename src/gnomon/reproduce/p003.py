@@ -20,6 +20,7 @@ harmonic roll/pitch/yaw (4°, 5° about a 2° mean, 3°; periods 23, 37, 29 s).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -124,127 +125,47 @@ def _progress_cb(progress, label):
     return cb
 
 
+@dataclasses.dataclass(frozen=True)
+class _Plan:
+    """The camera, scenes, flight and length of one reproduction (``quick`` or full)."""
+
+    quick: bool
+    progress: bool
+    t_start: float
+    cam: PinholeCamera
+    duration: float
+    scenes: list
+    flight: HarmonicFlight
+
+    @classmethod
+    def make(cls, quick: bool, progress: bool) -> _Plan:
+        scenes = (["meadow", "aero1"] if quick
+                  else ["meadow", "meadow_120", "aero1", "aero3", "horizon"])
+        return cls(quick, progress, time.time(), make_camera(), 60.0 if quick else 600.0,
+                   scenes, HarmonicFlight())
+
+    @property
+    def real_scenes(self) -> list:
+        return [s for s in self.scenes if s != "horizon"]
+
+    def log(self, msg: str) -> None:
+        if self.progress:
+            print(f"[p003 {time.time() - self.t_start:6.1f} s] {msg}", flush=True)
+
+
 def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool = False) -> dict:
-    """Run the seed-003 reproduction; see the module docstring for the returned dict."""
-    t_start = time.time()
-    cam = make_camera()
-    duration = 60.0 if quick else 600.0
-    scenes = ["meadow", "aero1"] if quick else ["meadow", "meadow_120", "aero1", "aero3",
-                                                "horizon"]
-    real_scenes = [s for s in scenes if s != "horizon"]
-    flight = HarmonicFlight()
-    hfov = cam.hfov_rad
-    runs = {}
-
-    def log(msg):
-        if progress:
-            print(f"[p003 {time.time() - t_start:6.1f} s] {msg}", flush=True)
-
-    # ---- per frame: true roll and yaw used for de-rotation, three pitch conversions
-    pf_scenes = real_scenes[:1] if quick else real_scenes[:2]
-    conv_err = {"resampled": 0.0, "atan": 0.0, "linear": 0.0}
-    per_frame_runs = {}
-    for k, sname in enumerate(pf_scenes):
-        log(f"per-frame accuracy on {sname}")
-        r = run_flight(make_scene(sname, cam), cam, "mems", 11, duration, "open_loop",
-                       flight=flight, conversions=("resampled", "atan", "linear"),
-                       derotation="truth", rng=np.random.default_rng(100 + k),
-                       progress=_progress_cb(progress, sname))
-        per_frame_runs[sname] = r
-        for c in conv_err:
-            e = np.degrees(np.abs(r["visual_pitch"][c] - r["truth"][:, 1]))
-            conv_err[c] = max(conv_err[c], float(e.max()))
-    per_frame = {"max_error_deg": conv_err["resampled"], "conversion": dict(conv_err)}
-
-    # ---- the paper's cases, open loop, and the closed loop
-    cases = []
-    formula = []
-    for k, sname in enumerate(scenes):
-        scene = make_scene(sname, cam)
-        for j, (gyro, w, mode) in enumerate(PAPER_CASES):
-            log(f"{sname}: {gyro} gyros, {w} px strip, {mode}")
-            r = run_flight(scene, cam, gyro, w, duration, mode, flight=flight,
-                           rng=np.random.default_rng(1000 * k + j),
-                           progress=_progress_cb(progress, f"{sname} {gyro} {w} {mode}"))
-            runs[(sname, gyro, w, mode)] = r
-            mx, rms, smx, aut = pitch_error_summary(r)
-            case = {"gyro": gyro, "strip_px": w, "scene": sname, "mode": mode,
-                    "duration_s": r["duration_s"], "max_pitch_error_deg": mx,
-                    "rms_pitch_error_deg": rms, "sins_max_pitch_error_deg": smx,
-                    "autonomy_s": aut, "real_scene": sname != "horizon",
-                    "accepted_fraction": float(np.mean(r["ok"])),
-                    "visual_available_fraction": float(np.mean(r["available"]))}
-            if mode == "closed_loop":
-                est, tru = r["estimate"], r["truth"]
-                case["max_roll_error_deg"] = float(np.degrees(np.abs(est[:, 0] - tru[:, 0])).max())
-                d_yaw = (est[:, 2] - tru[:, 2] + np.pi) % (2 * np.pi) - np.pi
-                case["max_yaw_error_deg"] = float(np.degrees(np.abs(d_yaw)).max())
-                case["accepted"] = dict(r["accepted"])
-                case["bias_estimate_rad_s"] = [float(b) for b in r["bias_estimate"]]
-            else:
-                e_open = r["sins_open"] - r["truth"]
-                case["sins_final_roll_error_deg"] = float(np.degrees(abs(e_open[-1, 0])))
-                d_yaw = (e_open[-1, 2] + np.pi) % (2 * np.pi) - np.pi
-                case["sins_final_yaw_error_deg"] = float(np.degrees(abs(d_yaw)))
-                bz = GYRO_CLASSES[gyro]["bias_rad_s"][2]
-                pred = autonomy_time_s(w, bz, hfov, cam.width)
-                formula.append({"strip_px": w, "gyro": gyro, "scene": sname,
-                                "predicted_s": pred, "simulated_s": aut,
-                                "paper_claim_s": PAPER_CLAIMS_S.get((gyro, w))})
-            cases.append(case)
-
-    # ---- formula (3) in isolation: yaw-gyro bias only, strip widths swept
-    sweep = []
-    widths = (5, 21) if quick else (3, 5, 11, 21, 41)
-    sweep_scenes = real_scenes[:1] if quick else [real_scenes[0], "aero1"]
-    bz = GYRO_CLASSES["mems"]["bias_rad_s"][2]
-    for k, sname in enumerate(sweep_scenes):
-        scene = make_scene(sname, cam)
-        for w in widths:
-            log(f"yaw-only sweep {sname} {w} px")
-            r = run_flight(scene, cam, "mems", w, 60.0 if quick else 120.0, "open_loop",
-                           flight=flight, gyro_bias_rad_s=(0.0, 0.0, bz),
-                           rng=np.random.default_rng(5000 + 10 * k + w))
-            _, _, _, aut = pitch_error_summary(r)
-            t = r["t"]
-            yaw_err = np.degrees(np.abs(r["sins_open"][:, 2] - r["truth"][:, 2]))
-            bad = np.nonzero(np.degrees(np.abs(r["visual_pitch"]["resampled"]
-                                               - r["truth"][:, 1])) > 0.5)[0]
-            sweep.append({"scene": sname, "strip_px": w, "yaw_bias_rad_s": bz,
-                          "predicted_s": autonomy_time_s(w, bz, hfov, cam.width),
-                          "simulated_s": aut,
-                          "yaw_error_at_failure_deg": float(yaw_err[bad[0]]) if bad.size
-                          else None,
-                          "duration_s": float(t[-1])})
-
-    # ---- why the strip stays at the principal-point column: residual roll -> pitch bias
-    offc = offcentre_strip_bias(make_scene(real_scenes[0], cam), cam,
+    """Run the seed-003 reproduction, experiment by experiment; see the module docstring
+    for the returned dict."""
+    plan = _Plan.make(quick, progress)
+    cam = plan.cam
+    per_frame, per_frame_runs = per_frame_pitch_conversions(plan)
+    cases, formula, runs = the_papers_cases(plan)
+    sweep = autonomy_vs_strip_width(plan)
+    # why the strip stays at the principal-point column: residual roll -> pitch bias
+    offc = offcentre_strip_bias(make_scene(plan.real_scenes[0], cam), cam,
                                 offsets_px=(0, 100, 200), roll_error_deg=1.0,
                                 n_frames=4 if quick else 12, rng=np.random.default_rng(9))
-
-    # ---- shift estimators on the same frames
-    log("shift estimators (SSD strip vs OpenCV)")
-    methods = compare_methods(make_scene(real_scenes[0], cam), cam,
-                              rpy_dcm(0.0, math.radians(2.0), 0.0),
-                              n_trials=8 if quick else 40, rng=np.random.default_rng(7),
-                              repeat=2 if quick else 3)
-    methods_aero = compare_methods(make_scene("aero1", cam), cam, np.eye(3),
-                                   n_trials=6 if quick else 40, rng=np.random.default_rng(8),
-                                   repeat=1 if quick else 3)
-
-    closed_real = [c for c in cases if c["mode"] == "closed_loop" and c["real_scene"]]
-    pc = methods["phase_correlation"]["time_us"]
-    ss = methods["ssd_subpixel"]["time_us"]
-    targets = {
-        "per_frame_resampled_le_0.1deg": per_frame["max_error_deg"] <= 0.1,
-        "closed_loop_mems_lt_0.5deg_scenes": sum(c["max_pitch_error_deg"] < 0.5
-                                                 for c in closed_real),
-        "ssd_subpixel_rmse_le_0.05px": methods["ssd_subpixel"]["rmse_px"] <= 0.05,
-        "ssd_speedup_vs_phase_correlation": (pc / ss) if np.isfinite(pc) else None,
-    }
-    # where each image came from, without the machine's absolute prefix
-    images = {n: {"path": display_path(find_image(n)[0]), "full_size": find_image(n)[1]}
-              for n in ("meadow_cube.jpg", "aero1.jpg", "aero3.jpg")}
+    methods, methods_aero = shift_estimators(plan)
     result = {
         "paper": "003",
         "per_frame": per_frame,
@@ -257,29 +178,168 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         "yaw_only_sweep": sweep,
         "paper_claims": paper_claims_implied_scale(),
         "offcentre_strip": offc,
-        "camera_px_per_rad": cam.width / hfov,
-        "targets": targets,
-        "setup": {"quick": quick, "duration_s": duration, "scenes": scenes,
-                  "camera": {"width": cam.width, "height": cam.height,
-                             "hfov_deg": math.degrees(cam.hfov_rad),
-                             "vfov_deg": math.degrees(cam.vfov_rad), "f_px": cam.f_px},
-                  "frame_hz": 2.0, "gyro_hz": 100.0,
-                  "flight": {"mean_deg": [math.degrees(a) for a in flight.mean_rad],
-                             "amp_deg": [math.degrees(a) for a in flight.amp_rad],
-                             "period_s": list(flight.period_s)},
-                  "gyros": {k: {"bias_rad_s": list(v["bias_rad_s"]),
-                                "noise_rad_s_sqrt_hz": v["noise_rad_s_sqrt_hz"]}
-                            for k, v in GYRO_CLASSES.items()},
-                  "images": images, "elapsed_s": None},
+        "camera_px_per_rad": cam.width / cam.hfov_rad,
+        "targets": _targets(per_frame, cases, methods),
+        "setup": _setup(plan),
     }
-    result["setup"]["elapsed_s"] = time.time() - t_start
+    result["setup"]["elapsed_s"] = time.time() - plan.t_start
     if out_dir is not None:
         out_dir = pathlib.Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
-        _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula)
+        _figure_pitch(out_dir, runs, plan.scenes)
+        _figure_pitch_errors(out_dir, runs, plan.scenes)
+        _figure_conversions(out_dir, per_frame_runs)
+        _figure_reference_frames(out_dir, runs, plan.scenes)
+        _figure_autonomy(out_dir, sweep, formula)
         (out_dir / "metrics.json").write_text(json.dumps(_jsonable(result), indent=2))
-    log("done")
+    plan.log("done")
     return _jsonable(result)
+
+
+def per_frame_pitch_conversions(plan: _Plan) -> tuple[dict, dict]:
+    """Per frame: the true roll and yaw used for the de-rotation, the three conversions of
+    the shift to a pitch (``per_frame``); also the runs (for the figure)."""
+    pf_scenes = plan.real_scenes[:1] if plan.quick else plan.real_scenes[:2]
+    conv_err = {"resampled": 0.0, "atan": 0.0, "linear": 0.0}
+    per_frame_runs = {}
+    for k, sname in enumerate(pf_scenes):
+        plan.log(f"per-frame accuracy on {sname}")
+        r = run_flight(make_scene(sname, plan.cam), plan.cam, "mems", 11, plan.duration,
+                       "open_loop", flight=plan.flight,
+                       conversions=("resampled", "atan", "linear"), derotation="truth",
+                       rng=np.random.default_rng(100 + k),
+                       progress=_progress_cb(plan.progress, sname))
+        per_frame_runs[sname] = r
+        for c in conv_err:
+            e = np.degrees(np.abs(r["visual_pitch"][c] - r["truth"][:, 1]))
+            conv_err[c] = max(conv_err[c], float(e.max()))
+    return {"max_error_deg": conv_err["resampled"], "conversion": dict(conv_err)}, per_frame_runs
+
+
+def the_papers_cases(plan: _Plan) -> tuple[list, list, dict]:
+    """The paper's cases (MEMS gyros with 11 and 6 px strips, medium gyros with 5 px) open
+    loop, and the loop closed, on every scene: ``cases``, the ``autonomy_formula`` rows of
+    the open-loop cases (formula (3) beside the simulated autonomy) and the runs."""
+    cases, formula, runs = [], [], {}
+    for k, sname in enumerate(plan.scenes):
+        scene = make_scene(sname, plan.cam)
+        for j, (gyro, w, mode) in enumerate(PAPER_CASES):
+            plan.log(f"{sname}: {gyro} gyros, {w} px strip, {mode}")
+            r = run_flight(scene, plan.cam, gyro, w, plan.duration, mode, flight=plan.flight,
+                           rng=np.random.default_rng(1000 * k + j),
+                           progress=_progress_cb(plan.progress, f"{sname} {gyro} {w} {mode}"))
+            runs[(sname, gyro, w, mode)] = r
+            case = _case_row(r, sname, gyro, w, mode)
+            if mode != "closed_loop":
+                bz = GYRO_CLASSES[gyro]["bias_rad_s"][2]
+                formula.append({"strip_px": w, "gyro": gyro, "scene": sname,
+                                "predicted_s": autonomy_time_s(w, bz, plan.cam.hfov_rad,
+                                                               plan.cam.width),
+                                "simulated_s": case["autonomy_s"],
+                                "paper_claim_s": PAPER_CLAIMS_S.get((gyro, w))})
+            cases.append(case)
+    return cases, formula, runs
+
+
+def _case_row(r: dict, sname: str, gyro: str, w: int, mode: str) -> dict:
+    """One case's row: pitch errors, autonomy, and the closed loop's roll/yaw errors,
+    acceptance and bias estimate (or the open-loop SINS's final roll/yaw errors)."""
+    mx, rms, smx, aut = pitch_error_summary(r)
+    case = {"gyro": gyro, "strip_px": w, "scene": sname, "mode": mode,
+            "duration_s": r["duration_s"], "max_pitch_error_deg": mx,
+            "rms_pitch_error_deg": rms, "sins_max_pitch_error_deg": smx,
+            "autonomy_s": aut, "real_scene": sname != "horizon",
+            "accepted_fraction": float(np.mean(r["ok"])),
+            "visual_available_fraction": float(np.mean(r["available"]))}
+    if mode == "closed_loop":
+        est, tru = r["estimate"], r["truth"]
+        case["max_roll_error_deg"] = float(np.degrees(np.abs(est[:, 0] - tru[:, 0])).max())
+        d_yaw = (est[:, 2] - tru[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        case["max_yaw_error_deg"] = float(np.degrees(np.abs(d_yaw)).max())
+        case["accepted"] = dict(r["accepted"])
+        case["bias_estimate_rad_s"] = [float(b) for b in r["bias_estimate"]]
+    else:
+        e_open = r["sins_open"] - r["truth"]
+        case["sins_final_roll_error_deg"] = float(np.degrees(abs(e_open[-1, 0])))
+        d_yaw = (e_open[-1, 2] + np.pi) % (2 * np.pi) - np.pi
+        case["sins_final_yaw_error_deg"] = float(np.degrees(abs(d_yaw)))
+    return case
+
+
+def autonomy_vs_strip_width(plan: _Plan) -> list:
+    """Formula (3) in isolation: the yaw-gyro bias only, the strip width swept; the
+    simulated autonomy beside the predicted one (``yaw_only_sweep``)."""
+    sweep = []
+    widths = (5, 21) if plan.quick else (3, 5, 11, 21, 41)
+    sweep_scenes = plan.real_scenes[:1] if plan.quick else [plan.real_scenes[0], "aero1"]
+    bz = GYRO_CLASSES["mems"]["bias_rad_s"][2]
+    for k, sname in enumerate(sweep_scenes):
+        scene = make_scene(sname, plan.cam)
+        for w in widths:
+            plan.log(f"yaw-only sweep {sname} {w} px")
+            r = run_flight(scene, plan.cam, "mems", w, 60.0 if plan.quick else 120.0,
+                           "open_loop", flight=plan.flight, gyro_bias_rad_s=(0.0, 0.0, bz),
+                           rng=np.random.default_rng(5000 + 10 * k + w))
+            _, _, _, aut = pitch_error_summary(r)
+            t = r["t"]
+            yaw_err = np.degrees(np.abs(r["sins_open"][:, 2] - r["truth"][:, 2]))
+            bad = np.nonzero(np.degrees(np.abs(r["visual_pitch"]["resampled"]
+                                               - r["truth"][:, 1])) > 0.5)[0]
+            sweep.append({"scene": sname, "strip_px": w, "yaw_bias_rad_s": bz,
+                          "predicted_s": autonomy_time_s(w, bz, plan.cam.hfov_rad,
+                                                         plan.cam.width),
+                          "simulated_s": aut,
+                          "yaw_error_at_failure_deg": float(yaw_err[bad[0]]) if bad.size
+                          else None,
+                          "duration_s": float(t[-1])})
+    return sweep
+
+
+def shift_estimators(plan: _Plan) -> tuple[dict, dict]:
+    """What the project adds: the SSD strip shift (integer and sub-pixel) against OpenCV's
+    phase correlation and ECC on the same frames, on the first real scene and on aero1."""
+    plan.log("shift estimators (SSD strip vs OpenCV)")
+    quick = plan.quick
+    methods = compare_methods(make_scene(plan.real_scenes[0], plan.cam), plan.cam,
+                              rpy_dcm(0.0, math.radians(2.0), 0.0),
+                              n_trials=8 if quick else 40, rng=np.random.default_rng(7),
+                              repeat=2 if quick else 3)
+    methods_aero = compare_methods(make_scene("aero1", plan.cam), plan.cam, np.eye(3),
+                                   n_trials=6 if quick else 40, rng=np.random.default_rng(8),
+                                   repeat=1 if quick else 3)
+    return methods, methods_aero
+
+
+def _targets(per_frame: dict, cases: list, methods: dict) -> dict:
+    closed_real = [c for c in cases if c["mode"] == "closed_loop" and c["real_scene"]]
+    pc = methods["phase_correlation"]["time_us"]
+    ss = methods["ssd_subpixel"]["time_us"]
+    return {
+        "per_frame_resampled_le_0.1deg": per_frame["max_error_deg"] <= 0.1,
+        "closed_loop_mems_lt_0.5deg_scenes": sum(c["max_pitch_error_deg"] < 0.5
+                                                 for c in closed_real),
+        "ssd_subpixel_rmse_le_0.05px": methods["ssd_subpixel"]["rmse_px"] <= 0.05,
+        "ssd_speedup_vs_phase_correlation": (pc / ss) if np.isfinite(pc) else None,
+    }
+
+
+def _setup(plan: _Plan) -> dict:
+    cam, flight = plan.cam, plan.flight
+    # where each image came from, without the machine's absolute prefix
+    images = {n: {"path": display_path(find_image(n)[0]), "full_size": find_image(n)[1]}
+              for n in ("meadow_cube.jpg", "aero1.jpg", "aero3.jpg")}
+    return {"quick": plan.quick, "duration_s": plan.duration, "scenes": plan.scenes,
+            "camera": {"width": cam.width, "height": cam.height,
+                       "hfov_deg": math.degrees(cam.hfov_rad),
+                       "vfov_deg": math.degrees(cam.vfov_rad), "f_px": cam.f_px},
+            "frame_hz": 2.0, "gyro_hz": 100.0,
+            "flight": {"mean_deg": [math.degrees(a) for a in flight.mean_rad],
+                       "amp_deg": [math.degrees(a) for a in flight.amp_rad],
+                       "period_s": list(flight.period_s)},
+            "gyros": {k: {"bias_rad_s": list(v["bias_rad_s"]),
+                          "noise_rad_s_sqrt_hz": v["noise_rad_s_sqrt_hz"]}
+                      for k, v in GYRO_CLASSES.items()},
+            "images": images, "elapsed_s": None}
 
 
 def _jsonable(x):
@@ -297,16 +357,30 @@ def _jsonable(x):
     return x
 
 
-def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
+
+
+# ------------------------------------------------------------------ figures
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _save(fig, path: pathlib.Path, dpi: int = 110) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    _pyplot().close(fig)
+
+
+def _figure_pitch(out_dir, runs, scenes) -> None:
+    """Pitch: truth, SINS, visual open loop, closed loop (first scene and aero1)."""
     d = np.degrees
-    # 1. pitch: truth, SINS, visual open loop, closed loop (first scene and aero1)
     shown = [s for s in scenes if s in ("meadow", "aero1")] or scenes[:1]
-    fig, axes = plt.subplots(len(shown), 1, figsize=(10, 3.6 * len(shown)), squeeze=False)
+    fig, axes = _pyplot().subplots(len(shown), 1, figsize=(10, 3.6 * len(shown)),
+                                   squeeze=False)
     for ax, s in zip(axes[:, 0], shown, strict=True):
         ro = runs[(s, "mems", 11, "open_loop")]
         rc = runs[(s, "mems", 11, "closed_loop")]
@@ -321,12 +395,14 @@ def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
         ax.set_title(f"scene {s}: pitch from SINS vs visual vs truth")
         ax.legend(loc="upper left", fontsize=8, ncol=2)
     axes[-1, 0].set_xlabel("time, s")
-    fig.tight_layout()
-    fig.savefig(out_dir / "pitch_sins_visual_truth.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "pitch_sins_visual_truth.png")
 
-    # 2. pitch error per case
-    fig, axes = plt.subplots(len(scenes), 1, figsize=(10, 2.8 * len(scenes)), squeeze=False)
+
+def _figure_pitch_errors(out_dir, runs, scenes) -> None:
+    """The pitch error of each of the paper's cases, per scene."""
+    d = np.degrees
+    fig, axes = _pyplot().subplots(len(scenes), 1, figsize=(10, 2.8 * len(scenes)),
+                                   squeeze=False)
     for ax, s in zip(axes[:, 0], scenes, strict=True):
         for (gyro, w, mode), st in zip(PAPER_CASES, ("C3", "C2", "C1", "C0"), strict=True):
             r = runs[(s, gyro, w, mode)]
@@ -339,12 +415,13 @@ def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
         ax.set_title(f"scene {s}")
         ax.legend(fontsize=7, loc="lower right", ncol=2)
     axes[-1, 0].set_xlabel("time, s")
-    fig.tight_layout()
-    fig.savefig(out_dir / "pitch_error_cases.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "pitch_error_cases.png")
 
-    # 3. per-frame conversions
-    fig, ax = plt.subplots(figsize=(7, 4))
+
+def _figure_conversions(out_dir, per_frame_runs) -> None:
+    """Per frame: the errors of the three conversions of the shift to a pitch."""
+    d = np.degrees
+    fig, ax = _pyplot().subplots(figsize=(7, 4))
     for s, r in per_frame_runs.items():
         dp = d(r["truth"][:, 1] - r["truth"][0, 1])
         for c, st in (("resampled", "C0."), ("atan", "C1."), ("linear", "C2.")):
@@ -354,12 +431,13 @@ def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
     ax.set_ylabel("visual pitch error, deg")
     ax.set_title("true roll/yaw de-rotation: pitch conversion errors")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "pitch_conversion.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "pitch_conversion.png")
 
-    # 4. the reference frames with the strips and the roll ring
-    fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.4), squeeze=False)
+
+def _figure_reference_frames(out_dir, runs, scenes) -> None:
+    """The reference frames with the strips and the roll ring."""
+    fig, axes = _pyplot().subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.4),
+                                   squeeze=False)
     for ax, s in zip(axes[0], scenes, strict=True):
         sm = runs[(s, "mems", 11, "closed_loop")]["matcher"]
         cam = sm.cam
@@ -373,12 +451,12 @@ def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
         ax.set_title(f"{s}: reference frame", fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
-    fig.savefig(out_dir / "reference_frames.png", dpi=90)
-    plt.close(fig)
+    _save(fig, out_dir / "reference_frames.png", dpi=90)
 
-    # 5. autonomy: formula (3) vs simulation
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+
+def _figure_autonomy(out_dir, sweep, formula) -> None:
+    """Autonomy: formula (3) against the simulation."""
+    fig, ax = _pyplot().subplots(figsize=(7, 4.5))
     for sc_name in sorted({e["scene"] for e in sweep}):
         ee = [e for e in sweep if e["scene"] == sc_name]
         ax.plot([e["strip_px"] for e in ee], [e["simulated_s"] for e in ee], "o-",
@@ -395,6 +473,4 @@ def _figures(out_dir, runs, per_frame_runs, scenes, sweep, formula):
     ax.set_ylabel("time to first pitch error > 0.5°, s")
     ax.set_yscale("log")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "autonomy_formula.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "autonomy_formula.png")

@@ -21,6 +21,7 @@ contract (plus extra keys) and writes ``metrics.json`` and PNG figures into ``ou
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -66,71 +67,131 @@ def _pct(sim_v: float, ana_v: float) -> float:
     return float(abs(sim_v - ana_v) / abs(ana_v) * 100.0)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Setup:
+    """The paper's disturbance at the sampling rate used: a pulse of acceleration ``a``
+    (``A g`` for ``tau`` s from ``t_on``) and a constant gyro drift ``wd`` (rad/s)."""
+
+    progress: bool
+    fs: float
+    dt: float
+    g: float
+    A: float
+    tau: float
+    t_on: float
+    wd: float
+    duration: float
+    t: np.ndarray
+    a: np.ndarray
+    zero: np.ndarray
+
+    @classmethod
+    def make(cls, quick: bool, progress: bool) -> _Setup:
+        c = CONFIG
+        fs = c["fs_hz_quick"] if quick else c["fs_hz"]
+        dt = 1.0 / fs
+        g, A = c["gravity_m_s2"], c["a_over_g"]
+        tau, t_on, wd = c["tau_s"], c["t_on_s"], c["drift_rad_s"]
+        duration = t_on + 8.0 * max(c["T_s"])
+        t = np.arange(0.0, duration + 0.5 * dt, dt)
+        a = sim.pulse_profile(t, t_on, tau, A * g)
+        return cls(progress, fs, dt, g, A, tau, t_on, wd, duration, t, a, np.zeros_like(t))
+
+    @property
+    def T1(self) -> float:
+        """The shorter first-order time constant (s): the bandwidth of the comparisons."""
+        return min(CONFIG["T_s"])
+
+    def say(self, msg: str) -> None:
+        _say(self.progress, msg)
+
+
 def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool = False) -> dict:
-    """Run the seed-004 reproduction; see the module docstring. Returns the metrics dict."""
-    c = CONFIG
-    fs = c["fs_hz_quick"] if quick else c["fs_hz"]
-    dt = 1.0 / fs
-    g = c["gravity_m_s2"]
-    A = c["a_over_g"]
-    tau, t_on, wd = c["tau_s"], c["t_on_s"], c["drift_rad_s"]
-    duration = t_on + 8.0 * max(c["T_s"])
-    t = np.arange(0.0, duration + 0.5 * dt, dt)
-    a = sim.pulse_profile(t, t_on, tau, A * g)
-    zero = np.zeros_like(t)
-    traces: dict = {"t": t}
-
-    # ---------------------------------------------------------------- first order, one axis
+    """Run the seed-004 reproduction, in the paper's order, then its "next step"; see the
+    module docstring. Returns the metrics dict."""
+    s = _Setup.make(quick, progress)
+    traces: dict = {"t": s.t}
     out: dict = {"paper": "004"}
-    for model, key in (("linear", "first_order"), ("true", "first_order_true_geometry")):
-        e_a = float(an.accel_tilt_error_rad(A, model))
-        res = {}
-        for T in c["T_s"]:
-            _say(progress, f"first order, {model} model, T = {T:g} s")
-            w_acc, phi_acc = sim.one_axis_inputs(a, 0.0, model, g)
-            w_dr, _ = sim.one_axis_inputs(zero, wd, model, g)
-            y_acc = cf.first_order_filter(w_acc, phi_acc, dt, T, phi0_rad=0.0)
-            y_dr = cf.first_order_filter(w_dr, zero, dt, T, phi0_rad=0.0)
-            y_sum = cf.first_order_filter(w_dr, phi_acc, dt, T, phi0_rad=0.0)
-            peak = float(np.max(np.abs(y_acc)))
-            drift = float(y_dr[-1])
-            ana_peak = an.first_order_peak_accel_error(T, tau, e_a)
-            ana_drift = an.first_order_steady_drift_error(T, wd)
-            res[f"T{T:g}"] = {
-                "peak_accel_error_deg": _deg(peak),
-                "drift_error_deg": _deg(drift),
-                "analytic_peak_accel_error_deg": _deg(ana_peak),
-                "analytic_peak_accel_error_small_tau_deg": _deg(
-                    an.first_order_peak_accel_error_small_tau(T, tau, e_a)),
-                "analytic_drift_error_deg": _deg(ana_drift),
-                "peak_sum_error_deg": _deg(np.max(np.abs(y_sum))),
-                "peak_accel_error_rel_diff_pct": _pct(peak, ana_peak),
-                "drift_error_rel_diff_pct": _pct(drift, ana_drift),
-            }
-            traces[(model, T)] = (y_dr, y_acc, y_sum,
-                                  an.first_order_drift_error(t, T, wd),
-                                  an.first_order_accel_error(t - t_on, T, tau, e_a))
-        out[key] = res
+    out["first_order"] = first_order_filter(s, "linear", traces)
+    out["first_order_true_geometry"] = first_order_filter(s, "true", traces)
+    out["second_order"], gains = second_order_variants(s, traces)
+    out["tilt_cf_3d"], incl3d = tilt_filter_in_3d(s, out["first_order_true_geometry"], gains)
+    # one noise stream: the speed-compensated runs, then the general profile
+    rng = np.random.default_rng(CONFIG["seed"])
+    comp = acceleration_compensation(s, rng, incl3d)
+    comp["general_profile"], general = general_profile_with_a_turn(s, rng)
+    out["compensated"] = comp
+    out["targets"] = _targets(out, s)
+    out["config"] = {**{k: (list(v) if isinstance(v, tuple) else v) for k, v in CONFIG.items()},
+                     "quick": quick, "fs_used_hz": s.fs, "duration_s": s.duration}
+    if out_dir is not None:
+        out_dir = pathlib.Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        s.say(f"figures -> {out_dir}")
+        _figure_first_order(out_dir, out, traces)
+        _figure_second_order(out_dir, traces, gains, s.t_on)
+        _figure_bode(out_dir, gains, s.T1)
+        _figure_compensated(out_dir, out, traces["t"], s.t_on, incl3d, general)
+        (out_dir / "metrics.json").write_text(json.dumps(out, indent=2) + "\n")
+    return out
 
-    # ---------------------------------------------------------------- second order, one axis
-    T1 = min(c["T_s"])
-    gains = an.second_order_gains(1.0 / T1, c["zeta"])
+
+def first_order_filter(s: _Setup, model: str, traces: dict) -> dict:
+    """The paper's Figs. 3-4: the first-order filter, T = 100 s and 200 s, one axis, in
+    the paper's linear model (``a/g``) or the true geometry (``arctan(a/g)``): peak
+    acceleration error and drift error, simulated and analytic, and their sum."""
+    e_a = float(an.accel_tilt_error_rad(s.A, model))
+    res = {}
+    for T in CONFIG["T_s"]:
+        s.say(f"first order, {model} model, T = {T:g} s")
+        w_acc, phi_acc = sim.one_axis_inputs(s.a, 0.0, model, s.g)
+        w_dr, _ = sim.one_axis_inputs(s.zero, s.wd, model, s.g)
+        y_acc = cf.first_order_filter(w_acc, phi_acc, s.dt, T, phi0_rad=0.0)
+        y_dr = cf.first_order_filter(w_dr, s.zero, s.dt, T, phi0_rad=0.0)
+        y_sum = cf.first_order_filter(w_dr, phi_acc, s.dt, T, phi0_rad=0.0)
+        peak = float(np.max(np.abs(y_acc)))
+        drift = float(y_dr[-1])
+        ana_peak = an.first_order_peak_accel_error(T, s.tau, e_a)
+        ana_drift = an.first_order_steady_drift_error(T, s.wd)
+        res[f"T{T:g}"] = {
+            "peak_accel_error_deg": _deg(peak),
+            "drift_error_deg": _deg(drift),
+            "analytic_peak_accel_error_deg": _deg(ana_peak),
+            "analytic_peak_accel_error_small_tau_deg": _deg(
+                an.first_order_peak_accel_error_small_tau(T, s.tau, e_a)),
+            "analytic_drift_error_deg": _deg(ana_drift),
+            "peak_sum_error_deg": _deg(np.max(np.abs(y_sum))),
+            "peak_accel_error_rel_diff_pct": _pct(peak, ana_peak),
+            "drift_error_rel_diff_pct": _pct(drift, ana_drift),
+        }
+        traces[(model, T)] = (y_dr, y_acc, y_sum,
+                              an.first_order_drift_error(s.t, T, s.wd),
+                              an.first_order_accel_error(s.t - s.t_on, T, s.tau, e_a))
+    return res
+
+
+def second_order_variants(s: _Setup, traces: dict) -> tuple[dict, tuple[float, float]]:
+    """The paper's Fig. 7: both second-order variants with ``r₁, r₂`` of the T = 100 s
+    bandwidth, on the same disturbance, against the closed forms; variant 2 also with its
+    own gains for the same bandwidth of ``1 − W``. Also ``(r₁, r₂)``."""
+    T1 = s.T1
+    gains = an.second_order_gains(1.0 / T1, CONFIG["zeta"])
     r1, r2 = gains.r1, gains.r2
-    w_acc, phi_acc = sim.one_axis_inputs(a, 0.0, "linear", g)
-    w_dr, _ = sim.one_axis_inputs(zero, wd, "linear", g)
+    w_acc, phi_acc = sim.one_axis_inputs(s.a, 0.0, "linear", s.g)
+    w_dr, _ = sim.one_axis_inputs(s.zero, s.wd, "linear", s.g)
     so = {}
     for v in an.VARIANTS:
-        _say(progress, f"second order, variant {v}")
-        y_acc = cf.second_order_filter(w_acc, phi_acc, dt, r1, r2, v, phi0_rad=0.0)
-        y_dr = cf.second_order_filter(w_dr, zero, dt, r1, r2, v, phi0_rad=0.0)
-        y_sum = cf.second_order_filter(w_dr, phi_acc, dt, r1, r2, v, phi0_rad=0.0)
-        ana_peak, t_peak = an.second_order_peak_accel_error(r1, r2, v, tau, A)
+        s.say(f"second order, variant {v}")
+        y_acc = cf.second_order_filter(w_acc, phi_acc, s.dt, r1, r2, v, phi0_rad=0.0)
+        y_dr = cf.second_order_filter(w_dr, s.zero, s.dt, r1, r2, v, phi0_rad=0.0)
+        y_sum = cf.second_order_filter(w_dr, phi_acc, s.dt, r1, r2, v, phi0_rad=0.0)
+        ana_peak, t_peak = an.second_order_peak_accel_error(r1, r2, v, s.tau, s.A)
         _, tf_1mw = an.second_order_tf(r1, r2, v)
         so[f"variant{v}"] = {
             "peak_accel_error_deg": _deg(np.max(np.abs(y_acc))),
             "steady_drift_error_deg": _deg(y_dr[-1]),
             "analytic_steady_drift_error_deg": _deg(
-                an.second_order_steady_drift_error(r1, r2, v, wd)),
+                an.second_order_steady_drift_error(r1, r2, v, s.wd)),
             "analytic_peak_accel_error_deg": _deg(ana_peak),
             "analytic_peak_time_after_onset_s": t_peak,
             "max_drift_error_deg": _deg(np.max(np.abs(y_dr))),
@@ -139,18 +200,18 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         }
         traces[("so", v)] = (y_dr, y_acc, y_sum)
     # variant 2 with its own gains for the same -3 dB bandwidth of 1 - W
-    g2 = an.second_order_gains(1.0 / T1, c["zeta"], variant=2)
-    y2 = cf.second_order_filter(w_acc, phi_acc, dt, g2.r1, g2.r2, 2, phi0_rad=0.0)
+    g2 = an.second_order_gains(1.0 / T1, CONFIG["zeta"], variant=2)
+    y2 = cf.second_order_filter(w_acc, phi_acc, s.dt, g2.r1, g2.r2, 2, phi0_rad=0.0)
     so["variant2_same_bandwidth"] = {
         "r1_1_s": g2.r1,
         "r2_1_s2": g2.r2,
         "peak_accel_error_deg": _deg(np.max(np.abs(y2))),
         "analytic_peak_accel_error_deg": _deg(
-            an.second_order_peak_accel_error(g2.r1, g2.r2, 2, tau, A)[0]),
+            an.second_order_peak_accel_error(g2.r1, g2.r2, 2, s.tau, s.A)[0]),
         "steady_drift_error_deg": _deg(
-            cf.second_order_filter(w_dr, zero, dt, g2.r1, g2.r2, 2, phi0_rad=0.0)[-1]),
+            cf.second_order_filter(w_dr, s.zero, s.dt, g2.r1, g2.r2, 2, phi0_rad=0.0)[-1]),
         "analytic_steady_drift_error_deg": _deg(
-            an.second_order_steady_drift_error(g2.r1, g2.r2, 2, wd)),
+            an.second_order_steady_drift_error(g2.r1, g2.r2, 2, s.wd)),
     }
     so["r1_1_s"] = r1
     so["r2_1_s2"] = r2
@@ -160,23 +221,32 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         so["variant1"]["peak_accel_error_deg"] < so["variant2"]["peak_accel_error_deg"]
         and so["variant1"]["peak_accel_error_deg"]
         < so["variant2_same_bandwidth"]["peak_accel_error_deg"])
-    out["second_order"] = so
+    return so, (r1, r2)
 
-    # ---------------------------------------------------------------- 3D tilt filter
-    _say(progress, "3D tilt-cf (true geometry)")
-    bias = (0.0, -wd, 0.0)
 
-    def incl(rec, **kw):
-        kw = {"bias_gain_1_s2": 0.0, "accel_rejection_rel": 0.0, **kw}
-        est = cf.TiltComplementaryFilter(time_constant_s=T1, init_samples=1, **kw).run(rec)
-        return broad_errors_rad(rec.q_true, est.q)["inclination"]
+def _inclination_error(rec, **kw) -> np.ndarray:
+    """Inclination error (rad) of ``tilt-cf`` with T = 100 s, no bias estimate and no
+    acceleration rejection unless ``kw`` says otherwise."""
+    kw = {"bias_gain_1_s2": 0.0, "accel_rejection_rel": 0.0, **kw}
+    est = cf.TiltComplementaryFilter(time_constant_s=min(CONFIG["T_s"]), init_samples=1,
+                                     **kw).run(rec)
+    return broad_errors_rad(rec.q_true, est.q)["inclination"]
 
-    rec_acc = sim.vehicle_recording(t, a, gyro_bias_rad_s=(0.0, 0.0, 0.0), gravity_m_s2=g)
-    rec_dr = sim.vehicle_recording(t, zero, gyro_bias_rad_s=bias, gravity_m_s2=g)
-    rec_sum = sim.vehicle_recording(t, a, gyro_bias_rad_s=bias, gravity_m_s2=g)
-    i_acc, i_dr, i_sum = incl(rec_acc), incl(rec_dr), incl(rec_sum)
-    tg = out["first_order_true_geometry"][f"T{T1:g}"]
-    out["tilt_cf_3d"] = {
+
+def tilt_filter_in_3d(s: _Setup, true_geometry: dict, gains) -> tuple[dict, dict]:
+    """The filter in discrete time, in 3D (``tilt-cf`` on the simulated IMU, the true
+    geometry): acceleration, drift and both, against the one-axis closed forms; variant 2
+    in 3D (a gyro-bias integral). Also the inclination errors (for what follows)."""
+    s.say("3D tilt-cf (true geometry)")
+    T1 = s.T1
+    bias = (0.0, -s.wd, 0.0)
+    rec_acc = sim.vehicle_recording(s.t, s.a, gyro_bias_rad_s=(0.0, 0.0, 0.0), gravity_m_s2=s.g)
+    rec_dr = sim.vehicle_recording(s.t, s.zero, gyro_bias_rad_s=bias, gravity_m_s2=s.g)
+    rec_sum = sim.vehicle_recording(s.t, s.a, gyro_bias_rad_s=bias, gravity_m_s2=s.g)
+    i_acc, i_dr, i_sum = (_inclination_error(rec_acc), _inclination_error(rec_dr),
+                          _inclination_error(rec_sum))
+    tg = true_geometry[f"T{T1:g}"]
+    out = {
         "T_s": T1,
         "peak_accel_error_deg": _deg(i_acc.max()),
         "drift_error_deg": _deg(i_dr[-1]),
@@ -185,87 +255,102 @@ def run(out_dir: pathlib.Path | None = None, quick: bool = False, progress: bool
         "analytic_drift_error_deg": tg["analytic_drift_error_deg"],
     }
     # variant 2 in 3D: the same filter with a gyro-bias integral (r1 = 1/T, r2 from the gains)
-    i_dr_b = incl(rec_dr, bias_gain_1_s2=r2)
-    out["tilt_cf_3d"]["with_bias_integral"] = {
+    r2 = gains[1]
+    i_dr_b = _inclination_error(rec_dr, bias_gain_1_s2=r2)
+    out["with_bias_integral"] = {
         "bias_gain_1_s2": r2,
         "drift_error_deg": _deg(i_dr_b[-1]),
         "max_drift_error_deg": _deg(i_dr_b.max()),
     }
+    return out, {"acc": i_acc, "dr": i_dr, "sum": i_sum}
 
-    # ---------------------------------------------------------------- compensation
-    _say(progress, "acceleration compensation from a speed sensor")
-    rng = np.random.default_rng(c["seed"])
-    spd = {"speed_rate_hz": c["speed_rate_hz"], "speed_noise_m_s": c["speed_noise_m_s"],
-           "speed_scale_error": c["speed_scale_error"]}
-    rec_c = sim.vehicle_recording(t, a, gyro_bias_rad_s=(0.0, 0.0, 0.0), gravity_m_s2=g,
+
+def _speed_sensor() -> dict:
+    return {k: CONFIG[k] for k in ("speed_rate_hz", "speed_noise_m_s", "speed_scale_error")}
+
+
+def acceleration_compensation(s: _Setup, rng: np.random.Generator, incl3d: dict) -> dict:
+    """The paper's "next step": the acceleration compensated from a speed sensor, on the
+    paper's disturbance without and with the drift (``compensated``); adds the
+    inclination errors to ``incl3d`` (``comp``, ``comp_sum``)."""
+    s.say("acceleration compensation from a speed sensor")
+    spd = _speed_sensor()
+    bias = (0.0, -s.wd, 0.0)
+    rec_c = sim.vehicle_recording(s.t, s.a, gyro_bias_rad_s=(0.0, 0.0, 0.0), gravity_m_s2=s.g,
                                   rng=rng, **spd)
-    i_c = incl(rec_c, speed_compensation=True)
-    rec_cs = sim.vehicle_recording(t, a, gyro_bias_rad_s=bias, gravity_m_s2=g, rng=rng, **spd)
-    i_cs = incl(rec_cs, speed_compensation=True)
-    comp = {
+    i_c = _inclination_error(rec_c, speed_compensation=True)
+    rec_cs = sim.vehicle_recording(s.t, s.a, gyro_bias_rad_s=bias, gravity_m_s2=s.g, rng=rng,
+                                   **spd)
+    i_cs = _inclination_error(rec_cs, speed_compensation=True)
+    i_acc = incl3d["acc"]
+    incl3d.update({"comp": i_c, "comp_sum": i_cs})
+    return {
         "peak_accel_error_deg": _deg(i_c.max()),
         "uncompensated_peak_accel_error_deg": _deg(i_acc.max()),
         "removed_fraction": float(1.0 - i_c.max() / i_acc.max()),
         "peak_sum_error_deg": _deg(i_cs.max()),
-        "T_s": T1,
+        "T_s": s.T1,
         **spd,
     }
 
-    # a general profile: accelerate, turn, brake (smooth edges), T = 100 s
-    _say(progress, "general profile with a turn")
-    tg_t = np.arange(0.0, 200.0, dt)
+
+def general_profile_with_a_turn(s: _Setup, rng: np.random.Generator) -> tuple[dict, tuple]:
+    """The compensation on a general profile: accelerate, turn, brake (smooth edges),
+    T = 100 s. Also ``(t, uncompensated, compensated inclination error)``."""
+    s.say("general profile with a turn")
+    tg_t = np.arange(0.0, 200.0, s.dt)
     a_gen = (sim.pulse_profile(tg_t, 10.0, 10.0, 3.0, edge_s=1.0)
              + sim.pulse_profile(tg_t, 70.0, 6.0, -5.0, edge_s=1.0))
     r_gen = sim.pulse_profile(tg_t, 40.0, 15.0, 0.2, edge_s=2.0)
     rec_g = sim.vehicle_recording(tg_t, a_gen, r_gen, gyro_bias_rad_s=(0.0, 0.0, 0.0),
-                                  gravity_m_s2=g, rng=rng, **spd)
-    i_g0, i_g1 = incl(rec_g), incl(rec_g, speed_compensation=True)
-    comp["general_profile"] = {
+                                  gravity_m_s2=s.g, rng=rng, **_speed_sensor())
+    i_g0, i_g1 = _inclination_error(rec_g), _inclination_error(rec_g, speed_compensation=True)
+    return {
         "uncompensated_peak_error_deg": _deg(i_g0.max()),
         "compensated_peak_error_deg": _deg(i_g1.max()),
         "removed_fraction": float(1.0 - i_g1.max() / i_g0.max()),
         "max_centripetal_m_s2": float(np.max(np.abs(rec_g.accel[:, 1]))),
-    }
-    out["compensated"] = comp
+    }, (tg_t, i_g0, i_g1)
 
-    # ---------------------------------------------------------------- targets
+
+def _targets(out: dict, s: _Setup) -> dict:
+    so, comp = out["second_order"], out["compensated"]
     fo = [out["first_order"][k] for k in out["first_order"]]
-    out["targets"] = {
+    return {
         "first_order_within_5pct": bool(all(
             r["peak_accel_error_rel_diff_pct"] < 5.0 and r["drift_error_rel_diff_pct"] < 5.0
             for r in fo)),
         "second_order_drift_matches_derivation": bool(all(
             abs(so[f"variant{v}"]["steady_drift_error_deg"]
                 - so[f"variant{v}"]["analytic_steady_drift_error_deg"])
-            < 0.01 * _deg(an.first_order_steady_drift_error(T1, wd)) for v in an.VARIANTS)),
+            < 0.01 * _deg(an.first_order_steady_drift_error(s.T1, s.wd)) for v in an.VARIANTS)),
         "variant1_attenuates_accel_better": so["variant1_attenuates_accel_better"],
         "compensation_removes_80pct": bool(comp["removed_fraction"] >= 0.8),
     }
-    out["config"] = {**{k: (list(v) if isinstance(v, tuple) else v) for k, v in c.items()},
-                     "quick": quick, "fs_used_hz": fs, "duration_s": duration}
-
-    if out_dir is not None:
-        out_dir = pathlib.Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        _say(progress, f"figures -> {out_dir}")
-        _figures(out_dir, out, traces, (r1, r2), t_on,
-                 {"acc": i_acc, "dr": i_dr, "sum": i_sum, "comp": i_c, "comp_sum": i_cs},
-                 (tg_t, i_g0, i_g1))
-        (out_dir / "metrics.json").write_text(json.dumps(out, indent=2) + "\n")
-    return out
 
 
-def _figures(out_dir, out, traces, gains, t_on, incl3d, general) -> None:
+# ------------------------------------------------------------------ figures
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _save(fig, path: pathlib.Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _pyplot().close(fig)
+
+
+def _figure_first_order(out_dir, out, traces) -> None:
+    """Figs. 3-4 of the paper: drift, acceleration and total error, T = 100 s and 200 s."""
     t = traces["t"]
     deg = np.degrees
-    # Figs. 3-4 of the paper: drift, acceleration and total error, T = 100 s and 200 s
     for T in out["config"]["T_s"]:
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), sharey=True)
+        fig, axes = _pyplot().subplots(1, 2, figsize=(12, 4.2), sharey=True)
         for ax, model, title in ((axes[0], "linear", "linear model (a/g)"),
                                  (axes[1], "true", "true geometry (arctan a/g)")):
             y_dr, y_acc, y_sum, a_dr, a_acc = traces[(model, T)]
@@ -279,13 +364,15 @@ def _figures(out_dir, out, traces, gains, t_on, incl3d, general) -> None:
             ax.grid(alpha=0.3)
         axes[0].set_ylabel("error (deg)")
         axes[0].legend()
-        fig.tight_layout()
-        fig.savefig(out_dir / f"first_order_T{T:g}.png", dpi=110)
-        plt.close(fig)
+        _save(fig, out_dir / f"first_order_T{T:g}.png")
 
-    # Fig. 7: second-order variants vs first order T = 100 s
-    T1 = min(out["config"]["T_s"])
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+
+def _figure_second_order(out_dir, traces, gains, t_on) -> None:
+    """Fig. 7: the second-order variants against the first order, T = 100 s."""
+    t = traces["t"]
+    deg = np.degrees
+    T1 = min(CONFIG["T_s"])
+    fig, axes = _pyplot().subplots(1, 3, figsize=(15, 4.2))
     fo = traces[("linear", T1)]
     for i, name in enumerate(("drift error", "acceleration error", "sum")):
         ax = axes[i]
@@ -301,16 +388,16 @@ def _figures(out_dir, out, traces, gains, t_on, incl3d, general) -> None:
     axes[0].legend()
     fig.suptitle(f"r1 = {gains[0]:.4g} 1/s, r2 = {gains[1]:.4g} 1/s^2 (same bandwidth as "
                  f"T = {T1:g} s)")
-    fig.tight_layout()
-    fig.savefig(out_dir / "second_order.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "second_order.png")
 
-    # Bode plots of W and 1 - W
+
+def _figure_bode(out_dir, gains, T1) -> None:
+    """Bode plots of W and 1 - W: the first order and both second-order variants."""
     w = np.logspace(-4, 0, 400)
     tfs = {f"first order T = {T1:g} s": an.first_order_tf(T1)}
     for v in (1, 2):
         tfs[f"variant {v}"] = an.second_order_tf(*gains, v)
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7), sharex=True)
+    fig, axes = _pyplot().subplots(2, 2, figsize=(12, 7), sharex=True)
     for label, (W, W1) in tfs.items():
         for j, tf in enumerate((W, W1)):
             mag, ph = an.bode(tf, w)
@@ -326,13 +413,15 @@ def _figures(out_dir, out, traces, gains, t_on, incl3d, general) -> None:
         ax.set_xlabel("ω (rad/s)")
     axes[0, 1].axhline(-3.0, color="k", lw=0.6, ls=":")
     axes[0, 1].legend()
-    fig.tight_layout()
-    fig.savefig(out_dir / "bode.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "bode.png")
 
-    # compensated case (3D filter)
+
+def _figure_compensated(out_dir, out, t, t_on, incl3d, general) -> None:
+    """The compensated case (3D filter) and the general profile."""
+    deg = np.degrees
+    T1 = min(CONFIG["T_s"])
     tg_t, i_g0, i_g1 = general
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, axes = _pyplot().subplots(1, 2, figsize=(12, 4.2))
     ax = axes[0]
     ax.plot(t, deg(incl3d["acc"]), label="3D, uncompensated (accel only)")
     ax.plot(t, deg(incl3d["comp"]), label="3D, speed-compensated (accel only)")
@@ -352,6 +441,4 @@ def _figures(out_dir, out, traces, gains, t_on, incl3d, general) -> None:
     ax.set_xlabel("t (s)")
     ax.legend()
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out_dir / "compensated.png", dpi=110)
-    plt.close(fig)
+    _save(fig, out_dir / "compensated.png")

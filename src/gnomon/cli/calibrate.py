@@ -1,0 +1,170 @@
+"""``gnomon calibrate SENSOR``: sensor calibration from a recording or log (``mag``: hard and
+soft iron; ``mag --orbit``: TWOSTEP)."""
+
+from __future__ import annotations
+
+from gnomon.cli.common import (
+    add_csv_options,
+    add_format_option,
+    add_log_options,
+    add_phone_mag_option,
+    print_json,
+    raw_phone_mag,
+    read_input,
+)
+from gnomon.errors import InputError
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser("calibrate", help="sensor calibration from a recording or log "
+                                         "(mag: hard and soft iron)")
+    csub = s.add_subparsers(dest="sensor", metavar="SENSOR")
+    c = csub.add_parser(
+        "mag", help="magnetometer hard/soft iron by a constrained ellipsoid fit, with a "
+                    "quality report; exit status 1 when refused",
+        description="Fit offset (hard iron) and a symmetric soft-iron matrix to the log's "
+                    "magnetometer: h = S (m - o), |h| = B. Move the device through as many "
+                    "directions as you can (docs/calibration.md). Spacecraft: --orbit "
+                    "estimates the bias alone by TWOSTEP against the recording's field "
+                    "model, whatever the attitude.")
+    c.add_argument("input", help="recording file or folder (any format gnomon reads)")
+    add_format_option(c)
+    add_log_options(c)
+    c.add_argument("--out", help="write the calibration as JSON (for gnomon estimate "
+                                 "--mag-calibration)")
+    c.add_argument("--plot", help="write a figure of raw and corrected samples, e.g. cal.png")
+    c.add_argument("--json", action="store_true", help="print the report as JSON")
+    c.add_argument("--field-uT", type=float, dest="field_uT",
+                   help="the local field magnitude B in uT (default: from --location/--date, "
+                        "else the data's own scale)")
+    c.add_argument("--location", metavar="LAT,LON[,ALT_M]",
+                   help="where the log was taken (deg, deg, m): B from IGRF-14")
+    c.add_argument("--date", help="when (YYYY-MM-DD), with --location")
+    c.add_argument("--model", default="auto", choices=["auto", "full", "scale", "offset"],
+                   help="auto (default): the richest model the directions visited determine")
+    add_phone_mag_option(c)
+    c.add_argument("--no-gyro", action="store_true",
+                   help="do not use the gyro (start, gate and fallback for the offset)")
+    c.add_argument("--orbit", action="store_true",
+                   help="spacecraft: the bias alone by TWOSTEP against the recording's field "
+                        "model (extra.b_o_model_nT or b_o_nT), attitude-independent "
+                        "(docs/calibration.md, 'On orbit: TWOSTEP')")
+    c.add_argument("--noise-nT", type=float, dest="noise_nT",
+                   help="with --orbit: the magnetometer's noise sigma per axis in nT "
+                        "(default: estimated from the data)")
+    add_csv_options(c)
+    c.set_defaults(func=run_mag)
+
+
+def run_mag(args) -> int:
+    """``gnomon.calibration.calibrate_mag(gnomon.io.read(path), field_uT=, location=,
+    model=)``, ``save_mag_calibration(out, cal)``, ``plot_mag_calibration(...)``. Exit
+    status 1 when the calibration is refused (the report says why). ``--orbit``:
+    :func:`_run_mag_orbit` (TWOSTEP against the recording's field model)."""
+    from gnomon.calibration import (
+        calibrate_mag,
+        mag_uT_of,
+        plot_mag_calibration,
+        save_mag_calibration,
+    )
+
+    raw_phone_mag(args, "calibrating")
+    rec = read_input(args)
+    if args.orbit:
+        return _run_mag_orbit(args, rec)
+    if args.noise_nT is not None:
+        raise InputError("--noise-nT goes with --orbit", field="--noise-nT")
+    location = None
+    if args.location:
+        parts = args.location.split(",")
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            raise InputError(f"expected LAT,LON[,ALT_M] in degrees and m, got "
+                             f"{args.location!r}", field="--location") from None
+        if len(values) not in (2, 3):
+            raise InputError(f"expected LAT,LON[,ALT_M], got {args.location!r}",
+                             field="--location")
+        if not args.date:
+            raise InputError("--location needs --date YYYY-MM-DD (the field changes with "
+                             "time)", field="--date")
+        location = {"latitude_deg": values[0], "longitude_deg": values[1],
+                    "altitude_m": values[2] if len(values) == 3 else 0.0, "date": args.date}
+    elif args.date:
+        raise InputError("--date goes with --location", field="--date")
+    cal = calibrate_mag(rec, field_uT=args.field_uT, location=location, model=args.model,
+                        gyro=not args.no_gyro)
+    report = {**cal.to_dict(), "input": str(args.input)}
+    if args.out:
+        save_mag_calibration(args.out, cal)
+        report["out"] = str(args.out)
+    if args.plot:
+        plot_mag_calibration(mag_uT_of(rec), cal, args.plot, title=str(args.input))
+        report["plot"] = str(args.plot)
+    if args.json:
+        print_json(report)
+    else:
+        o = ", ".join(f"{v:.2f}" for v in cal.offset_uT)
+        print(f"magnetometer calibration of {args.input}: {cal.n_samples} samples, "
+              f"{cal.model} model, {'ok' if cal.ok else 'REFUSED'}")
+        if not cal.ok:
+            print(f"  reason: {cal.reason}")
+        print(f"  offset_uT [{o}]")
+        print("  soft_iron " + "\n            ".join(
+            "[" + ", ".join(f"{v:8.5f}" for v in row) + "]" for row in cal.soft_iron))
+        print(f"  field {cal.field_uT:.2f} uT ({cal.field_source}); residual "
+              f"{cal.residual_uT:.2f} uT (raw spread {cal.raw_residual_uT:.2f} uT); coverage "
+              f"{cal.coverage:.2f}; condition {cal.condition:.3g}")
+        for key in ("out", "plot"):
+            if key in report:
+                print(f"  wrote {report[key]}")
+    return 0 if cal.ok else 1
+
+
+def _run_mag_orbit(args, rec) -> int:
+    """``gnomon calibrate mag REC --orbit``: ``gnomon.twostep.calibrate_mag_orbit(rec,
+    noise_nT)`` (TWOSTEP against the recording's field model). ``--json`` prints
+    ``TwostepResult.to_dict()`` (``bias_nT``, ``std_nT``, ``cov_nT2``, ``centred_bias_nT``,
+    ``centred_std_nT``, ``iterations``, ``converged``, ``residual_nT``,
+    ``raw_residual_nT``, ``noise_nT``, ``noise_source``, ``condition``, ``n_samples``,
+    ``mean_field_nT``, ``coverage``, ``field_source``, ``source``) plus ``input``,
+    ``mag_unit``, ``bias_in_mag_unit``, ``std_in_mag_unit`` and ``out``. ``--out`` writes
+    the bias as a calibration JSON (``gnomon estimate --mag-calibration``). Exit status 1
+    when Gauss-Newton did not converge."""
+    from gnomon.calibration import save_mag_calibration
+    from gnomon.recording import MAG_UNITS_TO_TESLA
+    from gnomon.twostep import calibrate_mag_orbit
+
+    for opt in ("field_uT", "location", "date", "plot"):
+        if getattr(args, opt, None):
+            raise InputError(f"--orbit uses the recording's field model; "
+                             f"--{opt.replace('_', '-')} does not apply",
+                             field=f"--{opt.replace('_', '-')}")
+    if args.model != "auto":
+        raise InputError("--orbit estimates the bias alone; --model does not apply",
+                         field="--model")
+    res = calibrate_mag_orbit(rec, noise_nT=args.noise_nT)
+    per_unit = 1e-9 / MAG_UNITS_TO_TESLA[rec.mag_unit]
+    report = {**res.to_dict(), "input": str(args.input), "mag_unit": rec.mag_unit,
+              "bias_in_mag_unit": [float(v) * per_unit for v in res.bias_nT],
+              "std_in_mag_unit": [float(v) * per_unit for v in res.std_nT]}
+    if args.out:
+        save_mag_calibration(args.out, res.calibration())
+        report["out"] = str(args.out)
+    if args.json:
+        print_json(report)
+    else:
+        print(f"TWOSTEP magnetometer bias of {args.input}: {res.n_samples} samples against "
+              f"{res.field_source}, {res.iterations} iterations, "
+              f"{'converged' if res.converged else 'NOT CONVERGED'}")
+        print("  bias_nT [" + ", ".join(f"{v:.1f}" for v in res.bias_nT) + "] +- ["
+              + ", ".join(f"{v:.1f}" for v in res.std_nT) + "] (1 sigma)")
+        if rec.mag_unit != "nT":
+            print(f"  bias_{rec.mag_unit} [" + ", ".join(
+                f"{v:.6g}" for v in report["bias_in_mag_unit"]) + "]")
+        print(f"  residual ||B - b| - |H|| {res.residual_nT:.1f} nT RMS (raw "
+              f"{res.raw_residual_nT:.1f} nT); noise {res.noise_nT:.1f} nT "
+              f"({res.noise_source}); condition {res.condition:.3g}")
+        if "out" in report:
+            print(f"  wrote {report['out']}")
+    return 0 if res.converged else 1

@@ -1,0 +1,186 @@
+"""``gnomon estimate``: run a filter on a recording or log, score it against its truth,
+write and plot the estimate."""
+
+from __future__ import annotations
+
+import math
+
+from gnomon.cli.common import (
+    add_csv_options,
+    add_format_option,
+    add_log_options,
+    add_phone_mag_option,
+    parse_pairs,
+    print_json,
+    raw_phone_mag,
+    read_input,
+)
+from gnomon.errors import InputError
+
+
+def add_parser(sub) -> None:
+    s = sub.add_parser("estimate", help="run a filter on a recording or log (CSV, BROAD, "
+                                        "gnomon HDF5, PX4 ULog, ArduPilot DataFlash, ROS 1/2 "
+                                        "bag, tyrex/Sensor Logger/phyphox phone export, Xsens "
+                                        "text, MATLAB .mat)")
+    s.add_argument("input", help="recording file or folder (format from the content; "
+                                 "see --format)")
+    from gnomon.estimators.registry import DEFAULT_ORDER, OFFLINE_DEFAULT_ORDER
+
+    s.add_argument("--filter", default=None,
+                   help="filter name (see `gnomon filters`; default: from the recording's "
+                        "sensors, the first that runs of "
+                        f"{', '.join(DEFAULT_ORDER)}; with --offline "
+                        f"{', '.join(OFFLINE_DEFAULT_ORDER)})")
+    s.add_argument("--offline", action="store_true",
+                   help="the most accurate attitude the whole log allows: an offline filter "
+                        "(forward and backward passes; --filter NAME picks NAME-offline), with "
+                        "a per-axis uncertainty (drawn as a band by --plot)")
+    s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
+    add_format_option(s)
+    add_log_options(s)
+    s.add_argument("--out", help="write the estimate (.csv or .h5)")
+    s.add_argument("--plot", help="write a figure (attitude, errors, bias, flags), e.g. out.png")
+    s.add_argument("--compare", choices=["onboard"],
+                   help="onboard: the RMS difference from the device's own attitude estimate "
+                        "(PX4, ArduPilot, phone OS, Xsens), heading references matched")
+    s.add_argument("--mag-calibration", metavar="CAL.json|self",
+                   help="correct the magnetometer first: a calibration from `gnomon "
+                        "calibrate mag --out` or 'self' (fitted to this log's own samples)")
+    add_phone_mag_option(s)
+    s.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_csv_options(s)
+    s.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """``registry.create(name, params).run(gnomon.io.read(path))`` and ``metrics.score``."""
+    from gnomon.estimators import registry
+    from gnomon.metrics import score
+
+    if args.mag_calibration:
+        raw_phone_mag(args, "--mag-calibration corrects")
+    rec = read_input(args)
+    cal_summary = None
+    if args.mag_calibration:
+        rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
+    args.filter, chosen = _estimate_filter(args.filter, args.offline, rec)
+    est = registry.create(args.filter, parse_pairs(args.param)).run(rec)
+    summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
+               **({"filter_chosen_because": chosen} if chosen else {}),
+               "params": est.params,
+               "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
+                                                        {}))}
+    if cal_summary is not None:
+        summary["mag_calibration"] = cal_summary
+    if rec.q_true is not None:
+        summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
+    matched = None
+    if args.compare == "onboard":
+        from gnomon.metrics import compare_onboard
+
+        summary["onboard"], matched = compare_onboard(rec, est.q)
+    if args.out:
+        from gnomon.io.estimate import write_estimate
+
+        write_estimate(args.out, est)
+        summary["out"] = str(args.out)
+    if args.plot:
+        from gnomon.report.figures import plot_estimate
+
+        plot_estimate(rec, est, args.plot,
+                      compare=None if matched is None else ("device's own", matched))
+        summary["plot"] = str(args.plot)
+    if args.json:
+        print_json(summary)
+    else:
+        _print_summary(summary)
+    return 0
+
+
+def _print_summary(s: dict) -> None:
+    """The summary of :func:`run` as text."""
+    print(f"{s['filter']} on {s['input']}: {s['samples']} samples")
+    if "filter_chosen_because" in s:
+        print(f"  (default filter: {s['filter_chosen_because']}; --filter NAME to choose)")
+    if "mag_calibration" in s:
+        cal = s["mag_calibration"]
+        print(f"  magnetometer calibration ({cal['from']}): {cal['model']}, "
+              f"offset {[round(v, 2) for v in cal['offset_uT']]} uT, coverage "
+              f"{cal['coverage']:.2f}, residual {cal['residual_uT']:.2f} uT")
+    for w in s["warnings"]:
+        print(f"  warning: {w['message']}")
+    if "errors" in s:
+        e = s["errors"]
+        print(f"  RMS error over {e['samples']} scored samples: total {e['total_deg']:.3f} deg, "
+              f"heading {e['heading_deg']:.3f} deg, inclination {e['inclination_deg']:.3f} deg")
+        print(f"  per axis: roll {e['roll_deg']:.3f}, pitch {e['pitch_deg']:.3f}, "
+              f"yaw {e['yaw_deg']:.3f} deg; max {e['max_deg']:.3f} deg")
+    else:
+        print("  (no truth in the input: no error summary)")
+    if "onboard" in s:
+        o = s["onboard"]
+        print(f"  vs the device's own estimate over {o['samples']} samples: total "
+              f"{o['total_deg']:.3f} deg, heading {o['heading_deg']:.3f} deg, inclination "
+              f"{o['inclination_deg']:.3f} deg ({o['heading_reference']})")
+    for key in ("out", "plot"):
+        if key in s:
+            print(f"  wrote {s[key]}")
+
+
+def _estimate_filter(name: str | None, offline: bool, rec) -> tuple[str, str | None]:
+    """The filter ``gnomon estimate`` runs, and why when it chose it: ``name``, or with
+    ``offline`` its ``-offline`` form; without a name the first of the registry's
+    default order that runs on ``rec`` (``registry.default_for``)."""
+    from gnomon.estimators import registry
+
+    if name is None:
+        return registry.default_for(rec, offline)
+    if not offline or getattr(registry.get(name), "offline", False):
+        return name, None
+    if f"{name}-offline" in registry.names():
+        return f"{name}-offline", None
+    raise InputError(f"{name!r} has no offline form; offline filters: "
+                     f"{', '.join(registry.names(offline=True))}", field="--filter")
+
+
+def _apply_mag_calibration(rec, which: str):
+    """``gnomon.calibration.apply_mag_calibration(rec, cal)`` with ``cal`` from a JSON
+    file (``gnomon calibrate mag --out``) or, for ``self``, ``calibrate_mag(rec,
+    require_ok=True)``: (the corrected recording, the calibration's report)."""
+    from gnomon.calibration import apply_mag_calibration, calibrate_mag, load_mag_calibration
+
+    if which == "self":
+        cal = calibrate_mag(rec, require_ok=True)
+    else:
+        cal = load_mag_calibration(which)
+    return apply_mag_calibration(rec, cal), {"from": which, **cal.to_dict()}
+
+
+def _limit_warnings(est, limits: dict) -> list[dict]:
+    """One entry per boolean signal ``<quantity>_at_limit`` of ``est`` that is ever true:
+    the bound (``limits``: signal -> (parameter, unit, what), a filter class attribute),
+    when it was first reached (s after the first sample) and for how long (s)."""
+    import numpy as np
+
+    out = []
+    t = np.asarray(est.t, float)
+    for name, flag in est.signals.items():
+        flag = np.asarray(flag)
+        if not name.endswith("_at_limit") or flag.dtype != bool or not flag.any():
+            continue
+        param, unit, what = limits.get(name, (None, "", name[:-len("_at_limit")]))
+        bound = est.params.get(param) if param else None
+        first = int(np.argmax(flag))
+        held = float(np.diff(t, append=t[-1])[flag].sum())  # each row until the next one
+        where = "its bound"
+        if bound is not None:
+            deg = f" = {math.degrees(bound):.3g} deg/s" if unit == "rad/s" else ""
+            where = f"±{bound:g} {unit}{deg} ({param})"
+        out.append({"signal": name, "parameter": param, "limit": bound, "unit": unit,
+                    "first_s": float(t[first] - t[0]), "duration_s": held,
+                    "fraction": float(flag.mean()),
+                    "message": f"{what} at its limit {where} from {t[first] - t[0]:.2f} s "
+                               f"for {held:.2f} s ({100 * flag.mean():.1f} % of samples); "
+                               f"the true value may lie beyond it"})
+    return out
