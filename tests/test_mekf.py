@@ -105,7 +105,8 @@ def _messy(rec):
 
 
 def _twin(f, rec, q0):
-    """The readable ``step`` of a fresh copy of ``f`` over ``run``'s inputs, sample by sample:
+    """The readable ``step`` of a fresh copy of ``f`` over the kernel's inputs (the second
+    pairs of ``vector_pairs``), sample by sample:
     ``(q (N, 4), bias, mag bias, flags (N, 5), the twin)``."""
     p = f.params
     g = type(f)(p)
@@ -114,12 +115,13 @@ def _twin(f, rec, q0):
     st = star_tracker_inputs(rec, p.use_star_tracker)
     n = len(rec)
     q, b, m, flags = np.empty((n, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 5), bool)
+    m_ = p.delay_samples  # the delayed pair's swing: since the twin's estimate M samples ago
     for i in range(n):
         st_q = st["st_q"][i] if st["st_valid"][i] else None
         q[i] = g.step(pairs["dt"][i], pairs["gyro"][i], pairs["w_io_o"][i], pairs["mag_b"][i],
                       pairs["mag_o"][i], pairs["sec_b"][i], pairs["sec_o"][i],
                       pairs["sec_valid"][i] and p.use_sun, pairs["substituted"][i], st_q,
-                      st["st_bore"][i])
+                      st["st_bore"][i], q_old=q[i - m_] if i >= m_ else None)
         b[i], m[i] = g.bias, g.mag_bias
         flags[i] = [g.flags[k] for k in FLAG_NAMES]
     return q, b, m, flags, g

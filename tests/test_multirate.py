@@ -2,7 +2,7 @@
 
 A synthetic IMU (exact truth) at 200 Hz whose magnetometer is kept at 50 Hz and its
 accelerometer at 100 Hz, each on its own clock (offset time stamps): the compiled run
-equals the readable ``update`` fed ``None`` where no new sample arrived, and the
+equals the readable ``update_reference`` fed ``None`` where no new sample arrived, and the
 accuracy stays that of the full-rate recording."""
 
 import numpy as np
@@ -59,7 +59,7 @@ def test_compiled_run_equals_update_with_none_where_no_sample(recs, name):
         if k == 0 and name == "tilt-cf":
             a = rec.accel[0]
         args = (dt[k], rec.gyro[k], a) if name == "tilt-cf" else (dt[k], rec.gyro[k], a, m)
-        q.append(twin.update(*args).copy())
+        q.append(twin.update_reference(*args).copy())
     np.testing.assert_allclose(np.array(q), est.q, atol=1e-11)
 
 
@@ -86,25 +86,29 @@ def test_lower_sensor_rates_keep_the_accuracy(recs, name):
 def test_eskf_one_sensor_rows_equal_the_readable_update(recs, name, params):
     """The ESKF corrects with the accelerometer's or the magnetometer's rows alone where
     only one has a new sample (here never both: their samples arrive in alternate rows);
-    with a tiny ``bias_gate`` the bias is held on some of them."""
+    with a tiny ``bias_gate`` the bias is held on some of them. The readable
+    ``update_reference`` and the compiled ``update``, resumed from a saved state, both
+    give the compiled run."""
     _, rec = recs
     start = registry.create(name, params)
     start.run(rec.slice(0, 400))
     rest = rec.slice(400, len(rec))
-    kernel, twin = registry.create(name, params), registry.create(name, params)
-    kernel.set_state(start.get_state())
-    twin.set_state(start.get_state())
+    kernel, twin, fast = (registry.create(name, params) for _ in range(3))
+    fast.update(0.0, rest.gyro[0], rest.accel[0], rest.mag[0])  # started, then resumed:
+    for f in (kernel, twin, fast):  # the saved state replaces what the first sample set
+        f.set_state(start.get_state())
     est = kernel.run(rest)
     acc, mag = rest.on_time_base("accel"), rest.on_time_base("mag")
     assert not (np.isfinite(acc[:, 0]) & np.isfinite(mag[:, 0])).any()
     dt = np.diff(rest.t, prepend=rec.t[399])
-    q = np.array([twin.update(dt[k], rest.gyro[k],
-                              acc[k] if np.isfinite(acc[k, 0]) else None,
-                              mag[k] if np.isfinite(mag[k, 0]) else None)
-                  for k in range(len(rest))])
-    np.testing.assert_allclose(q, est.q, atol=1e-10)
-    np.testing.assert_allclose(twin.P, kernel.P, atol=1e-12)
-    np.testing.assert_allclose(twin.bias, kernel.bias, atol=1e-12)
+    for f, tol in ((twin, 1e-10), (fast, 1e-12)):
+        step = f.update_reference if f is twin else f.update
+        q = np.array([step(dt[k], rest.gyro[k], acc[k] if np.isfinite(acc[k, 0]) else None,
+                           mag[k] if np.isfinite(mag[k, 0]) else None)
+                      for k in range(len(rest))])
+        np.testing.assert_allclose(q, est.q, atol=tol)
+        np.testing.assert_allclose(f.P, kernel.P, atol=1e-12)
+        np.testing.assert_allclose(f.bias, kernel.bias, atol=1e-12)
     if params:  # the gate both shut and open
         moved = np.any(np.diff(est.signals["bias_rad_s"], axis=0) != 0, axis=1)
         assert 0.05 < moved.mean() < 0.95, moved.mean()

@@ -51,15 +51,16 @@ def test_butterworth_matches_scipy():
 
 
 def _twin_run(params, rec, ts):
-    """The readable ``update`` sample by sample: ``q`` (N, 4), the per-sample signals of
-    ``run`` and the filter (its final state)."""
+    """The readable ``update_reference`` sample by sample: ``q`` (N, 4), the per-sample
+    signals of ``run`` and the filter (its final state)."""
     ref = RobustAHRS(params)
     ref.start(*ts)  # the same nominal sample times as the kernel run
     dt = np.diff(rec.t, prepend=rec.t[0])
     q, sig = [], {k: [] for k in ("bias_rad_s", "rest", "mag_disturbed", "acc_correction_rad_s",
-                                 "mag_gain", "hard_iron", "acc_skipped", "mag_skipped", "gap")}
+                                 "mag_gain", "hard_iron", "acc_skipped", "mag_skipped", "gap",
+                                 "bias_at_limit")}
     for i in range(len(rec)):
-        q.append(ref.update(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i]))
+        q.append(ref.update_reference(dt[i], rec.gyro[i], rec.accel[i], rec.mag[i]))
         s = ref.record
         for key, value in (("bias_rad_s", ref.bias), ("rest", s.rest),
                            ("mag_disturbed", s.mag_disturbed), ("acc_correction_rad_s", s.acc_rate),
@@ -88,7 +89,7 @@ def assert_kernel_equals_twin(params, rec):
     np.testing.assert_allclose(est.signals["bias_rad_s"], sig["bias_rad_s"], rtol=0, atol=1e-13)
     for key in ("acc_correction_rad_s", "mag_gain", "hard_iron"):
         np.testing.assert_allclose(est.signals[key], sig[key], rtol=1e-11, atol=1e-12, err_msg=key)
-    for key in ("rest", "mag_disturbed", "acc_skipped", "mag_skipped", "gap"):
+    for key in ("rest", "mag_disturbed", "acc_skipped", "mag_skipped", "gap", "bias_at_limit"):
         np.testing.assert_array_equal(est.signals[key], sig[key], err_msg=key)
     assert_same_state(run.state, ref.state)
     return est, run

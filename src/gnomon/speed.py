@@ -19,11 +19,20 @@ excluded by a warm-up call, freed memory kept for reuse by every method, see
   ``ahrs-madgwick`` (pure Python). Slow methods are timed on a prefix of the
   recording (``samples_timed`` says how many samples).
 
+Per sample (``per_sample``): the same recording's first ``per_sample_samples`` rows fed
+one call at a time from a Python loop, as a live program calls a filter: every causal
+gnomon IMU filter's ``update(dt, gyro, accel, mag)`` (its compiled sample path), and when
+installed VQF's ``update`` and ``BasicVQF``'s (C++ through its Python binding) and
+imufusion's ``Ahrs.update`` (C); µs per call, median over interleaved rounds, with the
+ratio to VQF's ``update``.
+
 Result (``gnomon bench --json``)::
 
     {"samples": int, "repeats": int,
      "results": {NAME: {"samples_per_s": float, "ratio_to_vqf_batch": float,
                         "samples_timed": int}},
+     "per_sample": {NAME: {"us_per_update": float, "ratio_to_vqf_update": float,
+                           "samples_timed": int}},
      "machine": {"cpu_count": int, "python": str, "processor": str,
                  "freed_memory_reused": bool}}
 """
@@ -42,7 +51,7 @@ import numpy as np
 
 from gnomon.progress import Progress
 
-__all__ = ["run_bench"]
+__all__ = ["run_bench", "run_per_sample", "markdown_table", "per_sample_table"]
 
 _IMU_NEEDS = {"gyro", "accel", "mag"}
 
@@ -114,14 +123,89 @@ def _methods(rec, runs: int):
     return methods
 
 
+def _per_sample_methods(rec, n: int):
+    """name -> a function that feeds the first ``n`` rows of ``rec`` one call at a time."""
+    from gnomon.estimators import registry
+
+    n = min(n, len(rec))
+    dt = np.diff(rec.t[:n], prepend=rec.t[0])
+    rows = [(float(dt[k]), rec.gyro[k].copy(), rec.accel[k].copy(), rec.mag[k].copy())
+            for k in range(n)]
+    methods = {}
+    for name in registry.names("imu", offline=False):
+        cls = registry.get(name)
+        if not set(cls.needs) <= _IMU_NEEDS or not hasattr(cls, "update_reference"):
+            continue
+
+        def feed(cls=cls):
+            f = cls()
+            f.prepare(rec)
+            update = f.update
+            if "mag" in cls.needs:
+                for h, g, a, m in rows:
+                    update(h, g, a, m)
+            else:
+                for h, g, a, _ in rows:
+                    update(h, g, a)
+        methods[name] = feed
+    ts = 1.0 / rec.sample_rate_hz
+    if importlib.util.find_spec("vqf") is not None:
+        import vqf
+
+        def feed_vqf(kind=vqf.VQF):
+            f = kind(ts)
+            update = f.update
+            for _, g, a, m in rows:
+                update(g, a, m)
+        methods["vqf"] = feed_vqf
+        methods["basicvqf"] = lambda: feed_vqf(vqf.BasicVQF)
+    if importlib.util.find_spec("imufusion") is not None:
+        import imufusion
+
+        fusion_rows = [(np.degrees(g), a / 9.80665, m) for _, g, a, m in rows]
+
+        def feed_fusion():
+            ahrs = imufusion.Ahrs()
+            ahrs.set_settings(imufusion.AhrsSettings(sample_rate=1.0 / ts))
+            ahrs.set_sample_period(ts)
+            update = ahrs.update
+            for g, a, m in fusion_rows:
+                update(g, a, m)
+        methods["imufusion"] = feed_fusion
+    return methods, n
+
+
+def run_per_sample(rec, samples: int = 20_000, repeats: int = 5, seed: int = 0) -> dict:
+    """µs per ``update`` call from Python for every per-sample method (module docstring):
+    ``{name: {"us_per_update", "ratio_to_vqf_update", "samples_timed"}}``."""
+    methods, n = _per_sample_methods(rec, samples)
+    for fn in methods.values():  # warm-up: the compiled entry points are looked up
+        fn()
+    times = {name: [] for name in methods}
+    names = list(methods)
+    order = np.random.default_rng(seed)
+    for _ in range(repeats):
+        for name in [names[j] for j in order.permutation(len(names))]:
+            t0 = time.perf_counter()
+            methods[name]()
+            times[name].append(time.perf_counter() - t0)
+    us = {name: float(np.median(v)) / n * 1e6 for name, v in times.items()}
+    ref = us.get("vqf")
+    return {name: {"us_per_update": v, "ratio_to_vqf_update": v / ref if ref else None,
+                   "samples_timed": n} for name, v in us.items()}
+
+
 def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
-              quick: bool = False, progress: bool = False, seed: int = 0) -> dict:
-    """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats.
+              quick: bool = False, progress: bool = False, seed: int = 0,
+              per_sample_samples: int = 20_000) -> dict:
+    """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats
+    (and 5,000 per-sample calls).
 
     ``seed`` fixes the random order of the methods in each round.
     """
     if quick:
         samples, repeats = min(samples, 200_000), min(repeats, 3)
+        per_sample_samples = min(per_sample_samples, 5_000)
     with _freed_memory_kept() as keeps_memory:
         rec = _recording(samples)
         methods = _methods(rec, runs)
@@ -148,7 +232,10 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
                       "ratio_to_vqf_batch": (rate / ref) if ref else float("nan"),
                       "samples_timed": methods[name][1]}
                for name, rate in rates.items()}
+    with _freed_memory_kept():
+        per_sample = run_per_sample(rec, per_sample_samples, repeats, seed)
     return {"samples": len(rec), "repeats": repeats, "results": results,
+            "per_sample": per_sample,
             "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
                         "processor": platform.processor() or platform.machine(),
                         "freed_memory_reused": keeps_memory}}
@@ -191,4 +278,20 @@ def markdown_table(res: dict) -> str:
     for name, r in rows:
         lines.append(f"| {name} | {r['samples_per_s'] / 1e6:.2f} | "
                      f"{r['ratio_to_vqf_batch']:.2f} |")
+    return "\n".join(lines)
+
+
+def per_sample_table(res: dict) -> str:
+    """The per-sample timings as a Markdown table, fastest first."""
+    rows = sorted(res.get("per_sample", {}).items(), key=lambda kv: kv[1]["us_per_update"])
+    if not rows:
+        return ""
+    n = rows[0][1]["samples_timed"]
+    lines = [f"Per sample from Python (`update` in a loop over {n:,} samples, median of "
+             f"{res['repeats']} rounds):", "",
+             "| method | µs per update | ratio to VQF update |", "| --- | ---: | ---: |"]
+    for name, r in rows:
+        ratio = r["ratio_to_vqf_update"]
+        lines.append(f"| {name} | {r['us_per_update']:.2f} | "
+                     f"{'n/a' if ratio is None else f'{ratio:.2f}'} |")
     return "\n".join(lines)

@@ -41,9 +41,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.kernels.entry import BAD_GYRO, NO_SAMPLE, vec3
 from gnomon.recording import Recording
 
-__all__ = ["Params", "Estimate", "Estimator", "param"]
+__all__ = ["Params", "Estimate", "Estimator", "CompiledIMUUpdate", "param", "imu_buffer"]
 
 
 def param(default, unit: str = "", doc: str = ""):
@@ -127,7 +128,13 @@ class Params:
         return type(self).from_dict({**dataclasses.asdict(self), **changes})
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The values by name (a new dict; built once per instance: a frozen instance never
+        changes, and a live filter asks at every chunk)."""
+        cached = self.__dict__.get("_as_dict")
+        if cached is None:
+            cached = dataclasses.asdict(self)
+            object.__setattr__(self, "_as_dict", cached)
+        return dict(cached)
 
     @classmethod
     def describe(cls) -> list[dict]:
@@ -157,8 +164,50 @@ class Estimate:
     signals: dict = field(default_factory=dict)
 
 
+def imu_buffer(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None):
+    """The inputs of an IMU filter's ``update_many`` checked and in kernel form: ``dt_s``
+    (N,) s, ``gyro_rad_s`` (N, 3), ``accel_m_s2``, ``mag_uT`` (N, 3) (None: no sample of
+    that sensor at all, a NaN array; a row with any non-finite value: no sample in that
+    row). Returns the four as float64 arrays (the arrays themselves when they already
+    are: strided views are fine for the kernels). Raises ``InputError`` naming the
+    argument for a wrong shape, a non-finite or negative ``dt_s`` or a non-finite gyro
+    row."""
+    dt = np.asarray(dt_s, dtype=float)
+    if dt.ndim != 1:
+        raise InputError(f"expected shape (N,), got {dt.shape}", field="dt_s")
+    n = dt.shape[0]
+    bad = np.flatnonzero(~(np.isfinite(dt) & (dt >= 0.0)))
+    if bad.size:
+        raise InputError(f"must be finite and >= 0, got {dt[bad[0]]!r}", field="dt_s",
+                         row=int(bad[0]))
+    out = [dt]
+    for name, x in (("gyro_rad_s", gyro_rad_s), ("accel_m_s2", accel_m_s2), ("mag_uT", mag_uT)):
+        if x is None:
+            if name == "gyro_rad_s":
+                raise InputError("a gyro sample is needed in every row", field=name)
+            out.append(np.full((n, 3), np.nan))
+            continue
+        x = np.asarray(x, dtype=float)
+        if x.shape != (n, 3):
+            raise InputError(f"expected shape ({n}, 3), got {x.shape}", field=name)
+        bad = ~np.isfinite(x).all(axis=1)
+        if name == "gyro_rad_s" and bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(f"non-finite value {x[k].tolist()}", field=name, row=k)
+        if bad.any():  # a partly broken sample is no sample (a NaN row), as in ``update``
+            x = x.copy()
+            x[bad] = np.nan
+        out.append(x)
+    return tuple(out)
+
+
 class Estimator:
-    """Base class: ``Params`` + state + ``reset`` / ``update`` / ``run``."""
+    """Base class: ``Params`` + state + ``reset`` / ``update`` / ``update_many`` / ``run``.
+
+    ``update`` (one sample) and ``update_many`` (a buffer of samples) run the compiled
+    kernel on the filter's own state: any split of a recording into such calls gives
+    ``run``'s result. ``update_reference``, where a filter has one, is the readable twin
+    of ``update`` that the tests hold the compiled paths to."""
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
@@ -195,6 +244,33 @@ class Estimator:
 
     def reset(self) -> None:  # pragma: no cover - every filter overrides
         raise NotImplementedError
+
+    def prepare(self, rec: Recording) -> None:
+        """Start a fresh filter as ``run(rec)`` does before its first sample (the initial
+        attitude from ``rec``'s first samples, nominal sample times), without processing a
+        sample: the rows of ``rec`` then fed through ``update``/``update_many`` in any
+        split (``sample_inputs``, ``buffer_inputs``) give ``run(rec)``'s result. A filter
+        that starts from its first ``update`` alone needs nothing here."""
+
+    def sample_inputs(self, rec: Recording):
+        """The rows of ``rec`` as ``update`` takes them: an iterator of ``(args, kwargs)``,
+        one per gyro sample (``dt_s`` 0 at the first; a sensor without a new sample in that
+        row is None). The IMU form ``(dt_s, gyro, accel, mag)``; filters with other inputs
+        override it."""
+        args, kwargs = self.buffer_inputs(rec)
+        dt, gyro, acc, mag = args
+        for k in range(len(dt)):
+            a = None if acc is None or acc[k, 0] != acc[k, 0] else acc[k]
+            m = None if mag is None or mag[k, 0] != mag[k, 0] else mag[k]
+            yield (dt[k], gyro[k], a, m), {key: v[k] for key, v in kwargs.items()}
+
+    def buffer_inputs(self, rec: Recording):
+        """The whole of ``rec`` as ``update_many`` takes it: ``(args, kwargs)`` of arrays
+        with the gyro samples along their first axis (slices of them along it are the
+        inputs of a part of ``rec``). The IMU form ``(dt_s, gyro, accel, mag)`` with NaN rows
+        where a sensor has no new sample; filters with other inputs override it."""
+        dt = np.diff(rec.t, prepend=rec.t[0])
+        return (dt, rec.gyro, rec.on_time_base("accel"), rec.on_time_base("mag")), {}
 
     def run(self, rec: Recording) -> Estimate:  # pragma: no cover - every filter overrides
         raise NotImplementedError
@@ -257,3 +333,97 @@ class Estimator:
                              f"the recording's reference frame is {ref!r} (convert the truth "
                              f"and frames at the reader, see docs/conventions.md)",
                              field="frames.reference", file=rec.source or None)
+
+
+_ND = np.ndarray
+_F8 = np.dtype(np.float64)
+_S3 = (3,)
+_INF = float("inf")
+
+
+class CompiledIMUUpdate:
+    """``update`` of an IMU filter through its compiled sample kernel (mixed into the
+    filter's class before ``Estimator``).
+
+    The filter provides ``_sample_kernel(dt_s, accel, mag)``: called at the first
+    ``update`` after ``reset`` (the state may still need its start: an initial attitude,
+    nominal sample times), it returns ``(kernel, coefficients)``: a numba kernel
+    ``kernel(dt_s, gyro, acc, mag, state, coefficients, q_out) -> flags`` (``gyro``, ``acc``,
+    ``mag`` (3,) float64, NaN in ``acc``/``mag``: no sample; ``q_out`` (4,) written with
+    the estimate; ``flags`` the kernel's bits, ``BAD_GYRO`` for a non-finite gyro sample
+    that changed nothing) and its coefficients as a record (``gnomon.kernels.entry.record``:
+    unboxed per call at the cost of one array, where a named tuple of 50 numbers costs a
+    microsecond). ``flag_bits`` names the bits for ``flags``.
+
+    Per call: the inputs' types are checked inline (a float64 (3,) array passes as it is;
+    anything else goes through ``vec3``), then one call of the compiled entry point
+    (``gnomon.kernels.entry.entry_point``); the result is a fresh (4,) array.
+    """
+
+    #: flag name -> bit of the sample kernel's flags (``flags``)
+    flag_bits: ClassVar[dict[str, int]] = {}
+
+    def _sample_kernel(self, dt_s, accel, mag):  # pragma: no cover - every filter overrides
+        raise NotImplementedError
+
+    def _reset_sample_path(self) -> None:
+        """Called by the filter's ``reset``: the next ``update`` looks its kernel up again."""
+        self._sample = None
+        self._flags = 0
+
+    def set_state(self, state: dict) -> None:
+        """``Estimator.set_state``, then the compiled path is looked up again (the state's
+        coefficients may differ)."""
+        super().set_state(state)
+        self._reset_sample_path()
+
+    @property
+    def flags(self) -> dict[str, bool]:
+        """What the last ``update`` did, by name (``flag_bits``)."""
+        f = getattr(self, "_flags", 0)
+        return {name: bool(f & bit) for name, bit in self.flag_bits.items()}
+
+    def _compile_sample(self, dt_s, g, a, m):
+        from gnomon.kernels.entry import entry_point
+
+        if not np.all(np.isfinite(g)):  # before the state starts from this sample
+            raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
+
+        kernel, coefficients = self._sample_kernel(dt_s, None if a is NO_SAMPLE else a,
+                                                   None if m is NO_SAMPLE else m)
+        self._q_now = np.zeros(4)
+        self._coefficients_record = coefficients
+        self._sample = entry_point(kernel, 0.0, g, a, m, self.state, coefficients,
+                                   self._q_now)
+        return self._sample
+
+    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, mag_uT=None) -> np.ndarray:
+        """One sample through the compiled kernel (the arithmetic of ``run``): ``dt_s`` (s)
+        since the previous sample (0 at the first), ``gyro_rad_s`` (3,), ``accel_m_s2``
+        (3,) m/s², ``mag_uT`` (3,) µT, body frame; None (or a NaN) is no new sample of that
+        sensor. Returns the estimate ``q_rb`` (4,); ``flags`` says what the sample did.
+        ``update_reference`` is the readable twin. A non-finite gyro sample raises
+        ``InputError`` and changes nothing."""
+        g, a, m = gyro_rad_s, accel_m_s2, mag_uT
+        if not (type(g) is _ND and g.dtype is _F8 and g.shape == _S3):
+            g = vec3(g, "gyro_rad_s")
+        if a is None:
+            a = NO_SAMPLE
+        elif not (type(a) is _ND and a.dtype is _F8 and a.shape == _S3):
+            a = vec3(a, "accel_m_s2")
+        if m is None:
+            m = NO_SAMPLE
+        elif not (type(m) is _ND and m.dtype is _F8 and m.shape == _S3):
+            m = vec3(m, "mag_uT")
+        if not 0.0 <= dt_s < _INF:
+            raise InputError(f"must be finite and >= 0, got {dt_s!r}", field="dt_s")
+        sample = self._sample
+        if sample is None:
+            sample = self._compile_sample(dt_s, g, a, m)
+        f = sample(dt_s, g, a, m, self.state, self._coefficients_record, self._q_now)
+        self._flags = f
+        if f & BAD_GYRO:
+            raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
+        return self._q_now.copy()

@@ -42,7 +42,15 @@ import numpy as np
 from scipy import signal
 
 from gnomon.errors import InputError
-from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.base import (
+    CompiledIMUUpdate,
+    Estimate,
+    Estimator,
+    Params,
+    imu_buffer,
+    param,
+)
+from gnomon.kernels.entry import BAD_GYRO, NO_SAMPLE, entry_point, record, vec3
 from gnomon.recording import Recording
 from gnomon.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
 
@@ -251,16 +259,31 @@ class TiltCFParams(Params):
         self._require("init_samples", self.init_samples >= 1, "must be >= 1")
 
 
-class TiltComplementaryFilter(Estimator):
+_ND = np.ndarray
+_F8 = np.dtype(np.float64)
+_S3 = (3,)
+
+
+class TiltComplementaryFilter(CompiledIMUUpdate, Estimator):
     """3D tilt complementary filter in quaternion form (seed 004); estimate ``q_nb``, n = ENU.
 
     Streaming: ``update(dt_s, gyro_rad_s, accel_m_s2=None, *, speed_m_s=nan)`` per sample
-    (the first call initialises from the accelerometer, ignoring the gyro; ``accel_m_s2``
-    None: no new accelerometer sample, gyro only). Batch: ``run(rec)`` (numba kernel
-    ``gnomon.kernels.tilt_cf``; initial tilt from the mean of the first ``init_samples``
-    accelerometer samples). Signals: ``acc_rejected`` (N,) bool (rejection or a zero
-    accelerometer vector), ``bias_rad_s`` (N, 3). State: ``state``, a one-element
-    ``gnomon.kernels.tilt_cf.STATE`` array (None before the first sample).
+    (the compiled ``gnomon.kernels.tilt_cf.tilt_cf_sample`` on the filter's own state; a
+    fresh filter's first call initialises from the accelerometer, not integrating the gyro;
+    ``accel_m_s2`` None, or with a non-finite component: no new accelerometer sample, gyro
+    only) and ``update_many`` (a buffer, the compiled batch loop); ``update_reference`` is
+    the readable twin. With ``speed_compensation`` ``update`` runs the readable twin (the
+    speed bookkeeping is Python's; ``update_many`` compensates in Python, then runs the
+    compiled loop). Batch: ``run(rec)`` (initial tilt from the mean of the first
+    ``init_samples`` accelerometer samples, ``prepare``; then the compiled loop).
+    Signals: ``acc_rejected`` (N,) bool (rejection or a zero accelerometer vector),
+    ``bias_rad_s`` (N, 3). State: ``state``, a one-element ``gnomon.kernels.tilt_cf.STATE``
+    array (None before the first sample); ``_t`` (s since the first sample) and ``_speed``
+    are kept only with ``speed_compensation``.
+
+    ``CompiledIMUUpdate`` gives ``flags`` and the reset of the sample path; ``update`` is
+    tilt-cf's own (no magnetometer, ``speed_m_s``, the start row after ``prepare``): it
+    looks its kernel up in ``_first_update``.
     """
 
     name = "tilt-cf"
@@ -272,12 +295,23 @@ class TiltComplementaryFilter(Estimator):
     needs = ("gyro", "accel")
     multi_rate = True
     state_fields = ("state", "t_last", "_t", "_speed")
+    flag_bits = {"acc_rejected": 1}  # gnomon.kernels.tilt_cf.ACC_REJECTED
 
     def reset(self) -> None:
         self.state = None  # kernels.tilt_cf.STATE (1,), set by the first sample
         self.t_last = None  # s, last sample processed by ``run``
         self._t = 0.0
         self._speed = _SpeedState()
+        # the state holds a start attitude (``prepare``) that the next sample outputs as it
+        # is, as ``run``'s first row (not saved by ``get_state``)
+        self._start_pending = False
+        self._reset_sample_path()
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from ``get_state``."""
+        super().set_state(state)
+        self._start_pending = False
+        self._reset_sample_path()
 
     @property
     def q(self) -> np.ndarray | None:
@@ -294,62 +328,222 @@ class TiltComplementaryFilter(Estimator):
         """Whether the last sample's accelerometer was not used."""
         return False if self.state is None else bool(self.state["acc_rejected"][0])
 
-    # -- one sample, readable (the kernel's reference) --
+    # -- one sample, compiled --
     def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, *,
                speed_m_s: float = math.nan) -> np.ndarray:
-        """Process one sample; returns ``q_nb`` (4,). ``dt_s``: time since the previous
-        sample (s); ``gyro_rad_s``, ``accel_m_s2`` (3,) body; ``speed_m_s`` forward speed
-        (NaN: no new speed sample) for ``speed_compensation``."""
+        """Process one sample through the compiled kernel (the arithmetic of ``run``);
+        returns ``q_nb`` (4,). ``dt_s``: time since the previous sample (s); ``gyro_rad_s``,
+        ``accel_m_s2`` (3,) body (None, or a non-finite component: no new accelerometer
+        sample); ``speed_m_s`` forward speed (NaN: no new speed sample) for
+        ``speed_compensation`` (then the readable twin runs). ``flags`` says whether the
+        accelerometer was used. A non-finite gyro sample raises ``InputError`` and changes
+        nothing."""
+        g, a = gyro_rad_s, accel_m_s2
+        if not (type(g) is _ND and g.dtype is _F8 and g.shape == _S3):
+            g = vec3(g, "gyro_rad_s")
+        if a is None:
+            a = NO_SAMPLE
+        elif not (type(a) is _ND and a.dtype is _F8 and a.shape == _S3):
+            a = vec3(a, "accel_m_s2")
+        sample = self._sample
+        if sample is None:  # the first sample after reset, prepare or set_state
+            return self._first_update(dt_s, g, a, speed_m_s)
+        f = sample(dt_s, g, a, self.state, self._coefficients_record, False, self._q_now)
+        self._flags = f
+        if f & BAD_GYRO:
+            raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
+        return self._q_now.copy()
+
+    def _first_update(self, dt_s, g, a, speed_m_s) -> np.ndarray:
+        """``update`` before its kernel is looked up: a fresh filter's first sample and
+        every sample with ``speed_compensation`` through the readable twin; else the
+        kernel's entry point (``gnomon.kernels.entry``), then this sample through it (the
+        start row after ``prepare``)."""
+        if self.state is None or self.params.speed_compensation:
+            return self.update_reference(dt_s, g, None if a is NO_SAMPLE else a,
+                                         speed_m_s=speed_m_s)
+        from gnomon.kernels.tilt_cf import coefficients, tilt_cf_sample
+
+        self._q_now = np.zeros(4)
+        self._coefficients_record = record(coefficients(self.params))
+        sample = entry_point(tilt_cf_sample, 0.0, g, a, self.state,
+                             self._coefficients_record, False, self._q_now)
+        f = sample(dt_s, g, a, self.state, self._coefficients_record, self._start_pending,
+                   self._q_now)
+        self._flags = f
+        if f & BAD_GYRO:
+            raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
+        self._start_pending = False
+        self._sample = sample
+        return self._q_now.copy()
+
+    # -- one sample, readable (the kernels' reference) --
+    def update_reference(self, dt_s: float, gyro_rad_s, accel_m_s2=None, *,
+                         speed_m_s: float = math.nan) -> np.ndarray:
+        """The readable twin of ``update`` (numpy, one sample; the tests hold the compiled
+        paths to it sample by sample). Same arguments, result and ``flags``."""
         from gnomon.kernels.tilt_cf import new_state
 
         w = np.asarray(gyro_rad_s, dtype=float)
+        if w.shape != (3,):
+            raise InputError(f"expected shape (3,), got {w.shape}", field="gyro_rad_s")
+        if not np.all(np.isfinite(w)):
+            self._flags = BAD_GYRO
+            raise InputError(f"non-finite value {w.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
         f = None if accel_m_s2 is None else np.array(accel_m_s2, dtype=float)
-        self._t = 0.0 if self.state is None else self._t + dt_s
+        if f is not None and f.shape != (3,):
+            raise InputError(f"expected shape (3,), got {f.shape}", field="accel_m_s2")
+        if f is not None and not np.all(np.isfinite(f)):
+            f = None  # a broken sample is no sample
+        if self.state is None and f is None:
+            raise InputError("the first sample needs an accelerometer reading (the "
+                             "initial tilt)", field="accel_m_s2")
         if self.params.speed_compensation:
+            self._t = 0.0 if self.state is None else self._t + dt_s
             self._speed.step(self._t, speed_m_s)
             if f is not None:
                 f = f - self._speed.a_lin(w)
-        if self.state is None:
-            if f is None:
-                raise InputError("the first sample needs an accelerometer reading (the "
-                                 "initial tilt)", field="accel_m_s2")
+        if self.state is None:  # the first sample: the initial tilt, nothing integrated
             self.state = new_state(quat_from_accel(f))
             self.state["acc_rejected"] = not np.linalg.norm(f) > 0.0
-            return self.q
-        tilt_step_reference(self.state.view(np.recarray)[0], self.params, dt_s, w, f)
+        elif self._start_pending:  # the start row after ``prepare``: its attitude as it is
+            self._start_pending = False
+            self.state["acc_rejected"] = not (f is not None and f @ f > 0.0)
+        else:
+            tilt_step_reference(self.state.view(np.recarray)[0], self.params, dt_s, w, f)
+        self._flags = 1 if self.acc_rejected else 0
         return self.q
 
-    # -- batch --
-    def run(self, rec: Recording) -> Estimate:
-        self.check_inputs(rec)
-        p = self.params
+    # -- buffers and batch --
+    def _accel(self, rec: Recording) -> np.ndarray:
+        """``rec``'s accelerometer on the gyro's time base (NaN rows: no new sample), with
+        the vehicle's acceleration removed under ``speed_compensation``."""
         accel = rec.on_time_base("accel")  # own rate: NaN rows where no new sample arrived
-        if p.speed_compensation:
-            speed = rec.extra.get("speed_m_s")
-            if speed is None:
-                raise InputError("speed_compensation needs extra['speed_m_s']; the recording "
-                                 "has none", field="extra.speed_m_s", file=rec.source or None)
-            speed = np.asarray(speed, dtype=float).reshape(-1)
-            if speed.shape != rec.t.shape:
-                raise InputError(f"expected shape {rec.t.shape}, got {speed.shape}",
-                                 field="extra.speed_m_s")
-            accel = compensate_accel(rec.t, accel, rec.gyro, speed)
-        if self.state is None:
-            first = accel[np.isfinite(accel[:, 0])][:p.init_samples]
-            q0, b0, t_prev = quat_from_accel(np.mean(first, axis=0)), np.zeros(3), math.nan
-        else:  # continue from the state of an earlier run
-            q0, b0 = self.q, self.bias_rad_s
-            t_prev = rec.t[0] - self.first_dt(rec)
-        q, bias, rej = tilt_cf_batch(rec.t, rec.gyro, accel, q0, p, b0=b0, t_prev=t_prev)
+        if self.params.speed_compensation:
+            accel = compensate_accel(rec.t, accel, rec.gyro, self._speed_of(rec))
+        return accel
+
+    @staticmethod
+    def _speed_of(rec: Recording) -> np.ndarray:
+        speed = rec.extra.get("speed_m_s")
+        if speed is None:
+            raise InputError("speed_compensation needs extra['speed_m_s']; the recording "
+                             "has none", field="extra.speed_m_s", file=rec.source or None)
+        speed = np.asarray(speed, dtype=float).reshape(-1)
+        if speed.shape != rec.t.shape:
+            raise InputError(f"expected shape {rec.t.shape}, got {speed.shape}",
+                             field="extra.speed_m_s")
+        return speed
+
+    def _start_at(self, accel) -> None:
+        """The start attitude of ``run``: the tilt of the mean of the first
+        ``init_samples`` accelerometer rows with a sample (``accel`` (N, 3), NaN rows: none),
+        output as it is by the next row."""
         from gnomon.kernels.tilt_cf import new_state
 
-        self.state = new_state(q[-1], bias[-1])
-        self.state["acc_rejected"] = bool(rej[-1])
-        self.t_last = float(rec.t[-1])
-        return Estimate(t=rec.t, q=q, estimator=self.name, params=p.as_dict(),
-                        frames={"reference": rec.frames.get("reference", "ENU"),
-                                "body": rec.frames.get("body", "sensor")},
+        first = accel[np.isfinite(accel[:, 0])][:self.params.init_samples]
+        self.state = new_state(quat_from_accel(np.mean(first, axis=0)))
+        self._start_pending = True
+        self._reset_sample_path()
+
+    def prepare(self, rec: Recording) -> None:
+        """The initial tilt as ``run`` sets it: from the mean of the first ``init_samples``
+        accelerometer samples (compensated under ``speed_compensation``); the next row
+        (``update``/``update_many``) outputs it as ``run``'s first row."""
+        self._start_at(self._accel(rec))
+
+    def buffer_inputs(self, rec: Recording):
+        """``rec`` as ``update_many`` takes it: ``(dt_s, gyro, accel)`` (accelerometer NaN
+        rows: no new sample) and, with ``speed_compensation``, ``speed_m_s``."""
+        dt = np.diff(rec.t, prepend=rec.t[0])
+        kwargs = {"speed_m_s": self._speed_of(rec)} if self.params.speed_compensation else {}
+        return (dt, rec.gyro, rec.on_time_base("accel")), kwargs
+
+    def sample_inputs(self, rec: Recording):
+        """The rows of ``rec`` as ``update`` takes them: ``(dt_s, gyro, accel)`` (accel None
+        where no new sample) and, with ``speed_compensation``, ``speed_m_s``."""
+        (dt, gyro, acc), kwargs = self.buffer_inputs(rec)
+        for k in range(len(dt)):
+            a = None if acc[k, 0] != acc[k, 0] else acc[k]
+            yield (dt[k], gyro[k], a), {key: float(v[k]) for key, v in kwargs.items()}
+
+    def update_many(self, dt_s, gyro_rad_s, accel_m_s2=None, *, speed_m_s=None,
+                    t_s=None) -> Estimate:
+        """A buffer of N samples through the compiled loop, as N calls of ``update``:
+        ``dt_s`` (N,) s (each since the previous sample), ``gyro_rad_s`` (N, 3),
+        ``accel_m_s2`` (N, 3) m/s² body frame with NaN rows where it has no new sample
+        (None: none at all); ``speed_m_s`` (N,) for ``speed_compensation`` (NaN: no new
+        speed sample). ``t_s`` (N,) the samples' times for the returned ``Estimate``
+        (default: the running sum of ``dt_s``)."""
+        from gnomon.kernels.tilt_cf import new_state
+
+        dt, gyro, acc, _ = imu_buffer(dt_s, gyro_rad_s, accel_m_s2)
+        n = len(dt)
+        fresh = self.state is None
+        if fresh and n and not np.isfinite(acc[0]).all():
+            raise InputError("the first sample needs an accelerometer reading (the "
+                             "initial tilt)", field="accel_m_s2", row=0)
+        if self.params.speed_compensation and n:
+            speed = (np.full(n, np.nan) if speed_m_s is None
+                     else np.asarray(speed_m_s, dtype=float).reshape(-1))
+            if speed.shape != (n,):
+                raise InputError(f"expected shape ({n},), got {speed.shape}",
+                                 field="speed_m_s")
+            acc = acc.copy()
+            t = self._t
+            for k in range(n):  # the readable twin's bookkeeping
+                t = 0.0 if fresh and k == 0 else t + dt[k]
+                self._speed.step(t, speed[k])
+                acc[k] -= self._speed.a_lin(gyro[k])
+            self._t = t
+        start = self._start_pending
+        if fresh and n:  # the first sample: its tilt is the start attitude
+            self.state = new_state(quat_from_accel(acc[0]))
+            start = True
+        self._start_pending = self._start_pending and not n
+        return self._batch(dt, gyro, acc, np.cumsum(dt) if t_s is None else t_s, start)
+
+    def _batch(self, dt, gyro, acc, t_s, start: bool) -> Estimate:
+        """``update_many`` on checked inputs (``run``'s come from a ``Recording``): the
+        compiled ``tilt_cf_batch`` from ``state``; ``start``: row 0 is the start row."""
+        from gnomon.kernels.tilt_cf import coefficients
+        from gnomon.kernels.tilt_cf import tilt_cf_batch as kernel
+
+        n = len(dt)
+        q = np.empty((n, 4))
+        bias = np.empty((n, 3))
+        rej = np.zeros(n, dtype=np.bool_)
+        kernel(dt, np.ascontiguousarray(gyro, dtype=float),
+               np.ascontiguousarray(acc, dtype=float), self.state,
+               coefficients(self.params), bool(start), q, bias, rej)
+        if n:
+            self._flags = 1 if rej[-1] else 0
+        return Estimate(t=np.asarray(t_s, dtype=float), q=q, estimator=self.name,
+                        params=self.params.as_dict(),
+                        frames={"reference": "ENU", "body": "sensor"},
                         signals={"acc_rejected": rej, "bias_rad_s": bias})
+
+    def run(self, rec: Recording) -> Estimate:
+        """Whole recording through the compiled loop (``prepare`` for a fresh filter, then
+        ``update_many`` over its rows; the accelerometer at its own rate, compensated under
+        ``speed_compensation`` from a fresh speed state); ``rec.frames['reference']`` must
+        be ENU."""
+        self.check_inputs(rec)
+        accel = self._accel(rec)
+        if self.state is None:
+            self._start_at(accel)
+        dt = np.empty(len(rec))
+        dt[0] = self.first_dt(rec)  # 0 for a fresh filter (its start row)
+        dt[1:] = np.diff(rec.t)
+        start, self._start_pending = self._start_pending, False
+        est = self._batch(dt, rec.gyro, accel, rec.t, start)
+        self.t_last = float(rec.t[-1])
+        est.frames = {"reference": rec.frames.get("reference", "ENU"),
+                      "body": rec.frames.get("body", "sensor")}
+        return est
 
 
 def tilt_step_reference(s, params: TiltCFParams, dt_s: float, gyro_rad_s, accel_m_s2) -> None:
@@ -391,15 +585,21 @@ def tilt_cf_batch(t_s, gyro_rad_s, accel_m_s2, q0, params: TiltCFParams, b0=None
     unless ``t_prev`` (s) is given: then the filter steps from ``q0``, ``b0`` (rad/s)
     at ``t_prev`` to ``t_s[0]`` (a continued run).
     """
-    from gnomon.kernels.tilt_cf import coefficients, new_state, tilt_cf_run
+    from gnomon.kernels.tilt_cf import coefficients, new_state
+    from gnomon.kernels.tilt_cf import tilt_cf_batch as kernel
 
     t = np.ascontiguousarray(t_s, dtype=float)
     n = t.size
     q = np.empty((n, 4))
     b = np.empty((n, 3))
     rej = np.zeros(n, dtype=np.bool_)
+    fresh = math.isnan(t_prev)
+    dt = np.empty(n)
+    if n:
+        dt[0] = 0.0 if fresh else t[0] - t_prev
+        dt[1:] = np.diff(t)
     state = new_state(q0, np.zeros(3) if b0 is None else b0)
-    tilt_cf_run(t, np.ascontiguousarray(gyro_rad_s, dtype=float),
-                np.ascontiguousarray(accel_m_s2, dtype=float), state, coefficients(params),
-                float(t_prev), q, b, rej)
+    kernel(dt, np.ascontiguousarray(gyro_rad_s, dtype=float),
+           np.ascontiguousarray(accel_m_s2, dtype=float), state, coefficients(params), fresh,
+           q, b, rej)
     return q, b, rej

@@ -42,21 +42,27 @@ a rate; these were named ``ki_per_s`` / ``ki_single_per_s`` before).
 
 Bad input: a zero or non-finite vector makes its pair unusable (flag), a sample
 interval above ``max_dt_s`` or a non-finite interval is a gap (gyro-only
-propagation, flag), a non-finite gyro sample is skipped (flag ``coast``): the
-estimate never holds a NaN.
+propagation, flag), an unusable gyro sample (None in ``update``) is skipped (flag
+``coast``): the estimate never holds a NaN. ``update`` refuses a gyro sample with a
+non-finite component (``InputError``, nothing done), as a ``Recording`` does.
 
-``run`` uses the numba kernel ``gnomon.kernels.spacecraft_cf.ecf_batch`` (coefficients
-``ecf_coefficients(params)``, state record ``STATE``); ``step`` is its readable twin, phase
-by phase (gyro prediction, vector pairs, PI correction), tested against it sample by
-sample. ``update`` is the streaming form: one raw sample (the sun substitute is made from
-the filter's own tail of past samples, as ``run`` makes it), then ``step``.
+The filter's compiled paths take raw samples and make the sun's substitute from the
+filter's own tail of past samples (``ring``, ``delay_samples`` of them, part of the
+state): ``update`` (one sample, the kernel ``gnomon.kernels.spacecraft_cf.ecf_sample``),
+``update_many`` (a buffer, ``ecf_stream``) and ``run`` (a recording: ``prepare``, the
+initial attitude, then the same ``ecf_stream``); any split of a recording into
+``update``/``update_many`` calls gives ``run``'s result. Coefficients
+``ecf_coefficients(params)``, state record ``STATE``. ``update_reference`` is the
+readable twin of ``update`` (the substitute ``_second_pair``, then ``step``, the twin of
+``ecf_step``, phase by phase: gyro prediction, vector pairs, PI correction), tested
+against the kernel sample by sample.
 
 Streaming arguments (shared by the seed-000 filters ``ecf-spacecraft``, ``qcf``,
 ``mekf-delayed``; ``None`` = no new sample of that input):
 
 * ``dt_s`` (s) since the previous sample (0 at the first: no step);
 * ``gyro_rad_s`` (3,) ``ω_ib_b`` rad/s (None: no propagation over this interval, flagged
-  ``coast``);
+  ``coast``; a non-finite component: refused);
 * ``mag_b`` (3,) the measured field in b and ``mag_ref_o`` (3,) the field model in o (any
   one unit: only directions are used);
 * ``sun_b`` (3,) the sun direction measured in b and ``sun_ref_o`` (3,) the sun model in o
@@ -73,6 +79,13 @@ import numpy as np
 
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.spacecraft_update import (
+    NO_GYRO,
+    CompiledSampleUpdate,
+    buffer,
+    gyro_sample,
+    vec,
+)
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 
@@ -237,15 +250,14 @@ def initial_q_ob(pairs: dict, k: int | None = None) -> np.ndarray:
     """
     from gnomon.estimators.wahba import triad
 
-    r = np.stack([pairs["sec_o"], pairs["mag_o"]], axis=1)
-    b = np.stack([pairs["sec_b"], pairs["mag_b"]], axis=1)
-    w = np.stack([pairs["sec_valid"].astype(float), np.ones(len(r))], axis=1)
-    stop = len(r) if k is None else k
-    real = pairs["sec_valid"] & ~pairs.get("substituted", np.zeros(len(r), bool))
-    for i in range(min(stop, len(r))):
-        if not real[i]:
-            continue
-        res = triad(r[i], b[i], w[i])
+    n = len(pairs["sec_valid"])
+    stop = n if k is None else min(k, n)
+    real = np.asarray(pairs["sec_valid"][:stop], bool)
+    if pairs.get("substituted") is not None:
+        real = real & ~np.asarray(pairs["substituted"][:stop], bool)
+    for i in np.flatnonzero(real):
+        res = triad(np.stack([pairs["sec_o"][i], pairs["mag_o"][i]]),
+                    np.stack([pairs["sec_b"][i], pairs["mag_b"][i]]), np.array([1.0, 1.0]))
         if not res.degenerate:
             return res.q
     return np.array([1.0, 0.0, 0.0, 0.0])
@@ -257,9 +269,15 @@ def _unit(v):
     return (v / n, True) if 0.0 < n < 1e300 else (np.zeros(3), False)
 
 
-def _row(v) -> np.ndarray:
-    """A streamed vector as one row (1, 3); None (no sample) as a row of NaN."""
-    return np.full((1, 3), np.nan) if v is None else np.asarray(v, float).reshape(1, 3)
+def _reference_vector(v, name: str) -> np.ndarray:
+    """A streamed vector for the readable twins: None (no sample) as a NaN row."""
+    return np.full(3, np.nan) if v is None else vec(v, name).copy()
+
+
+def _turned(q, rv):
+    """``q ⊗ exp(rv)`` normalised, or ``q`` for an absurd rotation (readable ``turn``)."""
+    rv = np.asarray(rv, float)
+    return _correct(q, rv) if float(rv @ rv) < 1e12 else q
 
 
 # ---------------------------------------------------------------- readable phases
@@ -292,27 +310,31 @@ def _pi_correct(s, kp, ki, e, dt) -> None:
     s.q[:] = _correct(s.q, kp * e * dt)
 
 
-class VectorPairFilter(Estimator):
-    """What the seed-000 filters share: the kernel's state record (``q_ob``, gyro bias, ...),
-    the last time and the tail of vector pairs (for the delayed substitute), the pairs of
-    a recording or of one streamed sample continuing that state, the initial attitude and
-    the batch outputs. Subclasses add ``step`` (the readable twin of the kernel's step),
-    ``update`` and ``run``."""
+class VectorPairFilter(CompiledSampleUpdate, Estimator):
+    """What the seed-000 filters share: the kernel's state record (``q_ob``, gyro bias, the
+    tail's position), the tail of past samples ``ring`` (the delayed substitute's pairs)
+    and the last time; the kernel inputs of a recording's rows, the initial attitude
+    (``prepare``), the substitute's readable twin and the batch outputs. Subclasses add
+    ``step`` (the readable twin of the kernel's step), ``update``, ``update_reference``,
+    ``update_many`` and ``run``."""
 
     kind = "spacecraft"
     reference_frame = "o"
     needs = ("gyro", "mag", "extra.b_o_nT")
-    state_fields = ("state", "t_last", "tail")
+    state_fields = ("state", "t_last", "ring")
+    flag_bits = {"mag_unusable": 1, "sun_unusable": 2, "gap": 4, "coast": 8}
 
     def reset(self, q0_ob=None) -> None:
         """A fresh filter; ``q0_ob`` (4,): start from this attitude (default: ``run`` finds
         one by TRIAD, ``update`` starts from the identity, the orbital frame)."""
         self.state = None  # the kernel's STATE record (an array of one element) once started
-        self.flags = {}
         self.t_last = None  # s, last sample processed by ``run``
-        self.tail = None  # the last M samples' vector pairs (for the delayed substitute)
+        self.ring = None  # the tail: the last delay_samples samples (kernels' RING records)
+        # the orbital frame's rate when a sample gives none: [0, −n, 0] rad/s
+        self._w_io0 = np.array([0.0, -getattr(self.params, "orbital_rate_rad_s", 0.0), 0.0])
+        self._reset_sample_path()
         if q0_ob is not None:
-            self._start(None, q0_ob)
+            self._start(q0_ob)
 
     def _new_state(self) -> np.ndarray:
         """A fresh kernel state at the identity (subclasses with more fields override)."""
@@ -332,42 +354,156 @@ class VectorPairFilter(Estimator):
 
     def record(self):
         """The state as a record with named fields (``s.q``, ``s.bias``, ...), writing through
-        to ``self.state``: what the readable phases work on."""
+        to ``self.state`` (created with an empty tail if there is none): what the readable
+        phases work on."""
         if self.state is None:
+            from gnomon.kernels.spacecraft_cf import new_ring
+
             self.state = self._new_state()
+            self.ring = new_ring(self.params.delay_samples)
         return self.state.view(np.recarray)[0]
 
-    def pairs(self, rec: Recording) -> dict:
-        """``vector_pairs`` of ``rec`` continuing this filter's earlier runs."""
-        p = self.params
-        pairs = vector_pairs(rec, p.sun_substitute, p.delay_samples, p.orbital_rate_rad_s,
-                             history=self.tail)
-        pairs["dt"][0] = self.first_dt(rec)
-        return pairs
+    # ---------------------------------------------------------------- a recording's rows
+    def _rows(self, rec: Recording, first_dt: float = 0.0) -> dict:
+        """The kernel inputs of ``rec``'s rows: ``dt`` (N,) s (``first_dt`` at row 0),
+        ``gyro``, ``w_io_o``, ``mag_b``, ``mag_o`` (the field model), ``sun_b``, ``sun_o``
+        (N, 3) (NaN where there is none) and ``sun_valid`` (N,) bool."""
+        n = len(rec)
+        dt = np.empty(n)
+        dt[0] = first_dt
+        dt[1:] = np.diff(rec.t)
+        c = np.ascontiguousarray
+        nan = np.full((n, 3), np.nan)
+        sun_o = rec.extra.get("s_o")
+        return {"dt": dt, "gyro": c(rec.gyro, float),
+                "w_io_o": _w_io_o(rec, self.params.orbital_rate_rad_s),
+                "mag_b": c(rec.mag, float), "mag_o": c(_field_reference(rec)),
+                "sun_b": nan if rec.sun is None else c(rec.sun, float),
+                "sun_o": nan if sun_o is None else c(sun_o, float),
+                "sun_valid": (np.ones(n, bool) if rec.sun is None or rec.sun_valid is None
+                              else c(rec.sun_valid, bool))}
 
-    def stream_pairs(self, dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
-                     w_io_o_rad_s, sun_substitute: str | None = None) -> dict:
-        """The kernel inputs of one streamed sample (the row ``vector_pairs`` makes of it in a
-        recording, the substitute from this filter's tail; ``sun_substitute`` overrides the
-        params'); the sample joins the tail."""
-        p = self.params
-        sub = p.sun_substitute if sun_substitute is None else sun_substitute
-        w_io = [0.0, -p.orbital_rate_rad_s, 0.0] if w_io_o_rad_s is None else w_io_o_rad_s
-        sun = _row(sun_b)
-        x = pairs_from_arrays(np.array([float(dt_s)]), _row(gyro_rad_s), _row(w_io),
-                              _row(mag_b), _row(mag_ref_o), sun, np.array([sun_b is not None]),
-                              _row(sun_ref_o), sub, p.delay_samples, self.tail)
-        self.tail = x.pop("tail")
-        return {k: v[0] for k, v in x.items()}
+    def _keywords(self, x: dict) -> dict:
+        """The keyword inputs of ``update_many`` of the rows ``x`` (a sun row NaN where it is
+        not valid)."""
+        sun_b = np.where(x["sun_valid"][:, None], x["sun_b"], np.nan)
+        return {"mag_b": x["mag_b"], "mag_ref_o": x["mag_o"], "sun_b": sun_b,
+                "sun_ref_o": x["sun_o"], "w_io_o_rad_s": x["w_io_o"]}
 
-    def _start(self, pairs: dict | None, q0) -> None:
-        """Initial attitude before a run: ``q0`` if given (the rest of the state kept), else
-        TRIAD of ``pairs`` for a fresh filter."""
+    def buffer_inputs(self, rec: Recording):
+        """``rec`` as ``update_many`` takes it: ``((dt, gyro), {mag_b, mag_ref_o, sun_b,
+        sun_ref_o, w_io_o_rad_s})`` (``sun_b`` NaN where not valid)."""
+        x = self._rows(rec)
+        return (x["dt"], x["gyro"]), self._keywords(x)
+
+    def sample_inputs(self, rec: Recording):
+        """The rows of ``rec`` as ``update`` takes them (None where a NaN row says "none")."""
+        args, kwargs = self.buffer_inputs(rec)
+        for k in range(len(args[0])):
+            kw = {}
+            for key, v in kwargs.items():
+                row = v[k]
+                kw[key] = row if np.isfinite(row).all() else None
+            yield (args[0][k], args[1][k]), kw
+
+    def prepare(self, rec: Recording, q0=None) -> None:
+        """What ``run(rec)`` does before its first sample: the attitude ``q0`` if given (the
+        rest of the state kept), else for a fresh filter TRIAD of the first sample with the
+        sun and a usable field (``initial_q_ob``; the identity without one)."""
+        self._prepare(self._rows(rec), q0)
+
+    def _prepare(self, x: dict, q0) -> None:
+        if q0 is None and self.state is None:
+            valid = (x["sun_valid"] & np.isfinite(x["sun_b"]).all(axis=1)
+                     & np.isfinite(x["sun_o"]).all(axis=1))
+            q0 = initial_q_ob({"sec_o": x["sun_o"], "mag_o": x["mag_o"], "sec_b": x["sun_b"],
+                               "mag_b": x["mag_b"], "sec_valid": valid})
+        self._start(q0)
+
+    def _start(self, q0) -> None:
+        """The attitude ``q0`` (the rest of the state kept; a fresh state if none); None: a
+        fresh state at the identity if there is none."""
+        s = self.record()
         if q0 is not None:
-            s = self.record()
             s.q[:] = np.asarray(q0, float) / np.linalg.norm(q0)
-        elif self.state is None:
-            self.record().q[:] = initial_q_ob(pairs)
+
+    def pairs(self, rec: Recording) -> dict:
+        """The kernel inputs of ``rec`` continuing this filter (its tail, its last time) with
+        the second pair made (``sec_b``, ``sec_o``, ``sec_valid``, ``substituted``: what
+        ``vector_pairs`` gives), the filter unchanged."""
+        return self._pairs(self._rows(rec, self.first_dt(rec)))
+
+    def _pairs(self, x: dict) -> dict:
+        from gnomon.kernels.spacecraft_cf import new_ring, new_state, pairs_stream
+
+        p = self.params
+        if self.state is None:
+            state, ring = new_state([1.0, 0.0, 0.0, 0.0]), new_ring(p.delay_samples)
+        else:
+            state, ring = self.state.copy(), self.ring.copy()
+        n = len(x["dt"])
+        out = {**x, "sec_b": np.empty((n, 3)), "sec_o": np.empty((n, 3)),
+               "sec_valid": np.empty(n, bool), "substituted": np.empty(n, bool)}
+        pairs_stream(self._coefficients(), state, ring, x["dt"], x["gyro"], x["w_io_o"],
+                     x["mag_b"], x["mag_o"], x["sun_b"], x["sun_o"], x["sun_valid"],
+                     out["sec_b"], out["sec_o"], out["sec_valid"], out["substituted"])
+        return out
+
+    def _buffer(self, dt_s, gyro_rad_s, w_io_o_rad_s, **arrays):
+        """``update_many``'s inputs checked (``buffer``; ``arrays``: name -> (N, 3) or None,
+        or ``(value, width)``), the orbital rate by default ``[0, −n, 0]``; the state
+        started (the identity) if there is none."""
+        spec = {k: (v if isinstance(v, tuple) else (v, 3)) + (None,) for k, v in arrays.items()}
+        dt, gyro, x = buffer(dt_s, gyro_rad_s, w_io_o=(w_io_o_rad_s, 3, self._w_io0), **spec)
+        self.record()
+        return {"dt": dt, "gyro": gyro, **x}
+
+    # ---------------------------------------------------------------- readable twins
+    def _reference_row(self, gyro_rad_s, w_io_o_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o):
+        """A streamed sample's inputs for the readable twins (numpy (3,); None: a NaN row,
+        the sun pair as none unless both are given; the gyro None: ``NO_GYRO``). Raises
+        ``InputError`` for a gyro sample with a non-finite component (nothing done)."""
+        g = NO_GYRO.copy() if gyro_rad_s is None else vec(gyro_rad_s, "gyro_rad_s").copy()
+        if not np.all(np.isfinite(g)):
+            raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                             field="gyro_rad_s")
+        w_io = (self._w_io0.copy() if w_io_o_rad_s is None
+                else vec(w_io_o_rad_s, "w_io_o_rad_s").copy())
+        sun = sun_b is not None and sun_ref_o is not None
+        return (g, w_io, _reference_vector(mag_b, "mag_b"),
+                _reference_vector(mag_ref_o, "mag_ref_o"),
+                _reference_vector(sun_b if sun else None, "sun_b"),
+                _reference_vector(sun_ref_o if sun else None, "sun_ref_o"))
+
+    def _second_pair(self, s, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o):
+        """Readable twin of ``spacecraft_cf.second_pair``: the second pair of a sample (the
+        sun where finite, else the magnetic pair ``delay_samples`` ago, carried to now by
+        the accumulated rotations for ``delayed-gyro``, once there is one), then the sample
+        joins the tail. Returns ``(sec_b, sec_o, sec_valid, substituted, slot)``."""
+        p = self.params
+        m, k = p.delay_samples, int(s.n_seen)
+        slot = k % m
+        gyro_carried = p.sun_substitute == "delayed-gyro"
+        if gyro_carried and k > 0:  # the body's and the orbital frame's turns since the start
+            h = dt if np.isfinite(dt) else 0.0
+            s.q_b0b[:] = _turned(s.q_b0b, np.where(np.abs(gyro) < 1e6, gyro, 0.0) * h)
+            s.q_o0o[:] = _turned(s.q_o0o, np.where(np.abs(w_io_o) < 1e6, w_io_o, 0.0) * h)
+        ring = self.ring
+        sec_b, sec_o, ok, sub = np.zeros(3), np.zeros(3), False, False
+        if np.all(np.isfinite(sun_b)) and np.all(np.isfinite(sun_o)):
+            sec_b, sec_o, ok = sun_b, sun_o, True
+        elif p.sun_substitute != "none" and k >= m:
+            sec_b, sec_o = ring["mag_b"][slot].copy(), ring["mag_o"][slot].copy()
+            ok = sub = True
+            if gyro_carried and np.all(np.isfinite(sec_b)) and np.all(np.isfinite(sec_o)):
+                sec_b = quat_rotate(quat_mul(quat_conj(s.q_b0b), ring["q_b0b"][slot]), sec_b)
+                sec_o = quat_rotate(quat_mul(quat_conj(s.q_o0o), ring["q_o0o"][slot]), sec_o)
+        if p.sun_substitute != "none":  # the tail is read only for a substitute
+            ring["mag_b"][slot], ring["mag_o"][slot] = mag_b, mag_o
+        if gyro_carried:
+            ring["q_b0b"][slot], ring["q_o0o"][slot] = s.q_b0b, s.q_o0o
+        s.n_seen = k + 1
+        return sec_b, sec_o, ok, sub, slot
 
     def _predict_phase(self, s, dt_s, gyro, w_io_o, second: str):
         """First phase of every readable ``step``: reset the flags (``second``: the name of
@@ -398,16 +534,20 @@ class VectorPairFilter(Estimator):
         """``q_out`` (n, 4), ``b_out`` (n, 3), ``flags`` (n, 4) int8 for a batch kernel."""
         return np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 4), np.int8)
 
-    def _finish(self, rec: Recording, pairs: dict, q_out, b_out, flags, names,
-                **signals) -> Estimate:
-        """Keep the end time and tail and wrap the outputs (the kernel has continued
-        ``self.state`` in place); ``names``: the 4 flag columns' names."""
-        self.t_last, self.tail = float(rec.t[-1]), pairs["tail"]
+    def _estimate(self, t, q_out, b_out, flags, names, **signals) -> Estimate:
+        """The outputs of a batch kernel (which has continued ``self.state`` in place) as an
+        ``Estimate`` at the times ``t``; ``names``: the 4 flag columns' names."""
         flag_signals = {name: flags[:, i].astype(bool) for i, name in enumerate(names)}
         return Estimate(
-            t=rec.t, q=q_out, estimator=self.name, params=self.params.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"), "body": "b"},
+            t=np.asarray(t, float), q=q_out, estimator=self.name,
+            params=self.params.as_dict(), frames={"reference": "o", "body": "b"},
             signals={"bias_rad_s": b_out, **signals, **flag_signals})
+
+    def _finish(self, rec: Recording, est: Estimate) -> Estimate:
+        """``run``'s end: keep the last time; the frames of ``rec``."""
+        self.t_last = float(rec.t[-1])
+        est.frames = {"reference": rec.frames.get("reference", "o"), "body": "b"}
+        return est
 
 
 class ExplicitSpacecraftCF(VectorPairFilter):
@@ -422,14 +562,67 @@ class ExplicitSpacecraftCF(VectorPairFilter):
     paper = "seed 000 (baseline: Mahony, Hamel & Pflimlin 2008)"
     Params = SpacecraftCFParams
 
+    def _coefficients(self):
+        from gnomon.kernels.spacecraft_cf import ecf_coefficients
+
+        return ecf_coefficients(self.params)
+
+    def _sample_kernel(self):
+        """``update``'s kernel (``CompiledSampleUpdate``): ``ecf_sample``."""
+        from gnomon.kernels.entry import record
+        from gnomon.kernels.spacecraft_cf import ecf_sample
+
+        return ecf_sample, record(self._coefficients())
+
     def update(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
                sun_ref_o=None, w_io_o_rad_s=None) -> np.ndarray:
-        """One raw sample (streaming; arguments in the module docstring). Returns ``q_ob``
-        (4,); ``self.flags`` says what was used."""
-        x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
-                              w_io_o_rad_s)
-        return self.step(dt_s, x["gyro"], x["w_io_o"], x["mag_b"], x["mag_o"], x["sec_b"],
-                         x["sec_o"], x["sec_valid"])
+        """One raw sample through the compiled kernel (the arithmetic of ``run``; arguments
+        in the module docstring). Returns ``q_ob`` (4,); ``flags`` says what was used.
+        ``update_reference`` is the readable twin."""
+        if self.state is None:
+            self.record()
+        if sun_b is None or sun_ref_o is None:
+            sun_b = sun_ref_o = None
+        w_io = self._w_io0 if w_io_o_rad_s is None else vec(w_io_o_rad_s, "w_io_o_rad_s")
+        return self._call(dt_s, gyro_sample(gyro_rad_s), w_io, vec(mag_b, "mag_b"),
+                          vec(mag_ref_o, "mag_ref_o"), vec(sun_b, "sun_b"),
+                          vec(sun_ref_o, "sun_ref_o"), self.state, self.ring)
+
+    def update_many(self, dt_s, gyro_rad_s, *, mag_b=None, mag_ref_o=None, sun_b=None,
+                    sun_ref_o=None, w_io_o_rad_s=None, t_s=None) -> Estimate:
+        """A buffer of N raw samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s, ``gyro_rad_s`` (N, 3) and the keyword inputs (N, 3), NaN rows
+        where there is no sample (None: none at all; ``w_io_o_rad_s`` None: ``[0, −n,
+        0]``). ``t_s`` (N,) the samples' times for the ``Estimate`` (default: the running
+        sum of ``dt_s``)."""
+        x = self._buffer(dt_s, gyro_rad_s, w_io_o_rad_s, mag_b=mag_b, mag_o=mag_ref_o,
+                         sun_b=sun_b, sun_o=sun_ref_o)
+        x["sun_valid"] = np.ones(len(x["dt"]), bool)
+        return self._batch(x, np.cumsum(x["dt"]) if t_s is None else t_s)
+
+    def _batch(self, x: dict, t) -> Estimate:
+        """The rows ``x`` (``_rows``) through ``ecf_stream``, continuing the state."""
+        from gnomon.kernels.spacecraft_cf import ecf_stream
+
+        n = len(x["dt"])
+        q_out, b_out, flags = self._outputs(n)
+        substituted = np.empty(n, bool)
+        ecf_stream(self._coefficients(), self.state, self.ring, x["dt"], x["gyro"], x["w_io_o"],
+                   x["mag_b"], x["mag_o"], x["sun_b"], x["sun_o"], x["sun_valid"], q_out,
+                   b_out, flags, substituted)
+        return self._estimate(t, q_out, b_out, flags,
+                              ("mag_unusable", "sun_unusable", "gap", "coast"),
+                              sun_substituted=substituted)
+
+    def update_reference(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None,
+                         sun_b=None, sun_ref_o=None, w_io_o_rad_s=None) -> np.ndarray:
+        """The readable twin of ``update`` (numpy, one sample: the substitute from the tail,
+        then ``step``; the tests hold the compiled paths to it). Same arguments and result."""
+        g, w_io, m_b, m_o, s_b, s_o = self._reference_row(gyro_rad_s, w_io_o_rad_s, mag_b,
+                                                          mag_ref_o, sun_b, sun_ref_o)
+        s = self.record()
+        sec_b, sec_o, ok, _, _ = self._second_pair(s, dt_s, g, w_io, m_b, m_o, s_b, s_o)
+        return self.step(dt_s, g, w_io, m_b, m_o, sec_b, sec_o, ok)
 
     def step(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid) -> np.ndarray:
         """One sample given the kernel's inputs (the second pair already substituted): the
@@ -465,17 +658,10 @@ class ExplicitSpacecraftCF(VectorPairFilter):
         return self.q
 
     def run(self, rec: Recording, q0=None) -> Estimate:
-        """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
-        sample with both pairs, else the current state, else identity)."""
-        from gnomon.kernels.spacecraft_cf import ecf_batch, ecf_coefficients
-
+        """Whole recording (compiled: ``prepare``, then the rows as ``update_many`` takes
+        them). ``q0``: initial ``q_ob`` (default: TRIAD of the first sample with both pairs,
+        else the current state, else identity)."""
         self.check_inputs(rec)
-        pairs = self.pairs(rec)
-        self._start(pairs, q0)
-        q_out, b_out, flags = self._outputs(len(rec))
-        ecf_batch(ecf_coefficients(self.params), self.state, pairs["dt"], pairs["gyro"],
-                  pairs["w_io_o"], pairs["mag_b"], pairs["mag_o"], pairs["sec_b"],
-                  pairs["sec_o"], pairs["sec_valid"], q_out, b_out, flags)
-        return self._finish(rec, pairs, q_out, b_out, flags,
-                            ("mag_unusable", "sun_unusable", "gap", "coast"),
-                            sun_substituted=pairs["substituted"])
+        x = self._rows(rec, self.first_dt(rec))
+        self._prepare(x, q0)
+        return self._finish(rec, self._batch(x, rec.t))

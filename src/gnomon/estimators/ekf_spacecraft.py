@@ -26,10 +26,14 @@ quaternion is renormalised after prediction and update. In eclipse
 Its gyro-aided remedy is the one spacecraft MEKF, :mod:`gnomon.estimators.mekf`
 (``mekf``; ``mekf-spacecraft`` is its seed-001 preset).
 
-``run`` calls the kernel ``gnomon.kernels.ekf_spacecraft.ekf_batch`` (coefficients
-``coefficients(params, J, gg)``, state record ``STATE`` holding ``z``, ``P`` and the known
-inputs of the last sample); its readable twin is the kernel's ``.py_func``
-(``run(rec, compiled=False)``). Streaming::
+``run`` (``prepare``: the coefficients and the initial state of a recording, then its
+rows) and ``update_many`` (a buffer of rows) call the kernel
+``gnomon.kernels.ekf_spacecraft.ekf_batch``, ``update`` (one row) ``ekf_sample``, both one
+``ekf_row`` per sample (coefficients ``coefficients(params, J, gg)``, state record
+``STATE`` holding ``z``, ``P`` and the known inputs of the last sample): any split of a
+recording into ``update``/``update_many`` calls gives ``run``'s result. The readable twin
+is the kernel's ``.py_func`` (``run(rec, compiled=False)``; ``update_reference`` runs
+``ekf_row.py_func`` per sample). Streaming::
 
     update(dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
            sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
@@ -37,7 +41,8 @@ inputs of the last sample); its readable twin is the kernel's ``.py_func``
 
 ``gyro_rad_s`` is ignored (the filter has no gyro: the rate is a state); ``mag_b``/``sun_b``
 (3,) measured in b and ``mag_ref_o``/``sun_ref_o`` (3,) models in o (any one unit, only
-directions are used; None = no sample, e.g. eclipse); ``w_io_o_rad_s`` (3,) rad/s
+directions are used; None, zero or non-finite = no sample, e.g. eclipse; a vector
+without its model is not used); ``w_io_o_rad_s`` (3,) rad/s
 (default ``[0, −orbit_rate, 0]``); the wheel momentum ``h_b_Nms``, its rate ``hdot_b_Nm``
 and the known external torque ``tau_b_Nm`` (e.g. magnetorquer ``m × B``) at this sample
 (None: zero) drive the prediction to the next sample, as in ``run``.
@@ -54,6 +59,7 @@ import numpy as np
 
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.spacecraft_update import CompiledSampleUpdate, buffer, vec
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_dcm, quat_rotate
 
@@ -188,7 +194,7 @@ class EKFSpacecraftParams(Params):
         self._require("substeps", self.substeps >= 1, "must be >= 1")
 
 
-class EKFSpacecraft(Estimator):
+class EKFSpacecraft(CompiledSampleUpdate, Estimator):
     """The seed-001 EKF: state (body rate, quaternion), dynamics in the prediction, no gyro."""
 
     name = "ekf-spacecraft"
@@ -206,7 +212,9 @@ class EKFSpacecraft(Estimator):
     def reset(self) -> None:
         self.state = None  # the kernel's STATE record once started
         self.t_last = None
-        self._coef = None  # the streaming update's coefficients (from its first sample)
+        self._coef = None  # the kernel's coefficients (``prepare``, or the first update)
+        self._w_io0 = np.array([0.0, -self.params.orbit_rate_rad_s, 0.0])
+        self._reset_sample_path()
 
     @property
     def z(self):
@@ -219,54 +227,169 @@ class EKFSpacecraft(Estimator):
         return None if self.state is None else self.state["P"][0].copy()
 
     def _new_state(self, z0) -> np.ndarray:
+        """A fresh state at ``z0``: its first sample is the initial state (no step)."""
         from gnomon.kernels.ekf_spacecraft import STATE
 
         p = self.params
         state = np.zeros(1, STATE)
         state["z"][0] = z0
         state["P"][0] = np.diag([p.p0_rate_rad_s**2] * 3 + [p.p0_quat**2] * 4)
+        state["pending"][0] = True
         return state
 
-    def update(self, dt_s: float, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
-               sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
-               tau_b_Nm=None, inertia_kg_m2=None) -> np.ndarray:
-        """One sample (streaming; arguments in the module docstring); returns ``q_ob`` (4,).
-
-        The first call initialises (TRIAD) and ``dt_s`` is ignored; the inertia
-        (``inertia_kg_m2`` (3, 3), else the params' diagonal tensor) and the gravity-gradient
-        coefficient (from ``|w_io_o|``) are taken at the first streamed sample.
-        """
-        from gnomon.kernels.ekf_spacecraft import coefficients, ekf_step, hold_inputs
+    # ---------------------------------------------------------------- streaming
+    def _start_from_sample(self, mag_b, mag_o, sun_b, sun_o, w_io, inertia_kg_m2) -> None:
+        """A streamed start: the coefficients (the inertia ``inertia_kg_m2`` (3, 3), else the
+        params' diagonal tensor; the gravity gradient from this sample's ``|w_io_o|``) if
+        there are none, the state (TRIAD of this sample, the orbit-fixed rate) if none."""
+        from gnomon.kernels.ekf_spacecraft import coefficients
 
         p = self.params
-        mag_u, bo_u = _vector(mag_b), _vector(mag_ref_o)
-        sun_ok = sun_b is not None and sun_ref_o is not None and p.use_sun
-        sun_u = _vector(sun_b) if sun_ok else np.zeros(3)
-        so_u = _vector(sun_ref_o) if sun_ok else np.zeros(3)
-        w_io = (np.array([0.0, -p.orbit_rate_rad_s, 0.0]) if w_io_o_rad_s is None
-                else np.asarray(w_io_o_rad_s, float))
-        if self._coef is None or self.state is None:  # streaming starts (or follows a run)
+        if self._coef is None:
             J = self.inertia if inertia_kg_m2 is None else np.asarray(inertia_kg_m2, float)
             gg = 3.0 * float(np.linalg.norm(w_io)) ** 2 if p.gravity_gradient else 0.0
             self._coef = coefficients(p, J, gg)
         if self.state is None:
-            q0 = _first_q(mag_u, bo_u, sun_u, so_u, sun_ok)
+            sun_ok = p.use_sun and bool(np.all(np.isfinite(sun_b)) and np.all(np.isfinite(sun_o)))
+            q0 = _first_q(*(_vector(v) for v in (mag_b, mag_o, sun_b, sun_o)), sun_ok)
             self.state = self._new_state(np.concatenate([quat_rotate(quat_conj(q0), w_io), q0]))
-        else:
-            ekf_step(self._coef, self.state[0], float(dt_s), mag_u, bo_u, sun_u, so_u, sun_ok,
-                     np.empty(2))
-        zero = np.zeros(3)
-        hold_inputs(self.state[0], w_io, *(zero if v is None else np.asarray(v, float)
-                                           for v in (h_b_Nms, hdot_b_Nm, tau_b_Nm)))
+
+    def _sample_kernel(self):
+        """``update``'s kernel (``CompiledSampleUpdate``): ``ekf_sample`` with the filter's
+        ``Coefficients`` (a named tuple: the batch's compiled phases serve it as they are)."""
+        from gnomon.kernels.ekf_spacecraft import ekf_sample
+
+        return ekf_sample, self._coef
+
+    def _inputs(self, mag_b, mag_ref_o, sun_b, sun_ref_o, w_io_o_rad_s, h_b_Nms, hdot_b_Nm,
+                tau_b_Nm):
+        """A streamed sample's vectors for the kernel (None: none; the inputs: zero)."""
+        if sun_b is None or sun_ref_o is None:
+            sun_b = sun_ref_o = None
+        zero = _ZERO3
+        return (vec(mag_b, "mag_b"), vec(mag_ref_o, "mag_ref_o"), vec(sun_b, "sun_b"),
+                vec(sun_ref_o, "sun_ref_o"),
+                self._w_io0 if w_io_o_rad_s is None else vec(w_io_o_rad_s, "w_io_o_rad_s"),
+                zero if h_b_Nms is None else vec(h_b_Nms, "h_b_Nms"),
+                zero if hdot_b_Nm is None else vec(hdot_b_Nm, "hdot_b_Nm"),
+                zero if tau_b_Nm is None else vec(tau_b_Nm, "tau_b_Nm"))
+
+    def update(self, dt_s: float, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
+               sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
+               tau_b_Nm=None, inertia_kg_m2=None) -> np.ndarray:
+        """One sample through the compiled kernel (the arithmetic of ``run``; arguments in
+        the module docstring); returns ``q_ob`` (4,). ``update_reference`` is the readable
+        twin.
+
+        The first call of a fresh filter initialises (TRIAD) and ``dt_s`` is ignored; the
+        inertia (``inertia_kg_m2`` (3, 3), else the params' diagonal tensor) and the
+        gravity-gradient coefficient (from ``|w_io_o|``) are taken at the first streamed
+        sample (after ``prepare``/``run``: those of the recording).
+        """
+        x = self._inputs(mag_b, mag_ref_o, sun_b, sun_ref_o, w_io_o_rad_s, h_b_Nms,
+                         hdot_b_Nm, tau_b_Nm)
+        if self._coef is None or self.state is None:
+            self._start_from_sample(*x[:5], inertia_kg_m2)
+        return self._call(float(dt_s), *x, self.state)
+
+    def update_reference(self, dt_s: float, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None,
+                         sun_b=None, sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None,
+                         hdot_b_Nm=None, tau_b_Nm=None, inertia_kg_m2=None) -> np.ndarray:
+        """The readable twin of ``update``: ``ekf_row.py_func`` (the kernel's row interpreted,
+        its phases as compiled) on the same state. Same arguments and result."""
+        from gnomon.kernels.ekf_spacecraft import ekf_row
+
+        x = self._inputs(mag_b, mag_ref_o, sun_b, sun_ref_o, w_io_o_rad_s, h_b_Nms,
+                         hdot_b_Nm, tau_b_Nm)
+        if self._coef is None or self.state is None:
+            self._start_from_sample(*x[:5], inertia_kg_m2)
+        ekf_row.py_func(self._coef, self.state.view(np.recarray)[0], float(dt_s), *x[:4],
+                        True, *x[4:], np.empty(2))
         return self.state["z"][0, 3:7].copy()
+
+    def update_many(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
+                    sun_ref_o=None, w_io_o_rad_s=None, h_b_Nms=None, hdot_b_Nm=None,
+                    tau_b_Nm=None, inertia_kg_m2=None, t_s=None) -> Estimate:
+        """A buffer of N samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s, the keyword inputs (N, 3) with NaN rows where there is no sample
+        (None: none at all; the orbital rate ``[0, −orbit_rate, 0]``, the known inputs
+        zero); ``gyro_rad_s`` ignored. ``t_s`` (N,) the samples' times (default: the
+        running sum of ``dt_s``)."""
+        zero = np.zeros(3)
+        dt, _, x = buffer(dt_s, None, mag_b=(mag_b, 3, None), b_o=(mag_ref_o, 3, None),
+                          sun_b=(sun_b, 3, None), s_o=(sun_ref_o, 3, None),
+                          w_io_o=(w_io_o_rad_s, 3, self._w_io0), h=(h_b_Nms, 3, zero),
+                          hdot=(hdot_b_Nm, 3, zero), tau=(tau_b_Nm, 3, zero))
+        x["dt"] = dt
+        x["sun_valid"] = np.ones(len(dt), bool)
+        if (self._coef is None or self.state is None) and len(dt):
+            self._start_from_sample(*(x[k][0] for k in ("mag_b", "b_o", "sun_b", "s_o",
+                                                        "w_io_o")), inertia_kg_m2)
+        return self._batch(x, np.cumsum(dt) if t_s is None else t_s)
 
     @property
     def inertia(self) -> np.ndarray:
         p = self.params
         return np.diag([p.inertia_x_kg_m2, p.inertia_y_kg_m2, p.inertia_z_kg_m2])
 
-    def _setup(self, rec: Recording, inertia=None):
-        """(coefficients, z0, kernel inputs) for ``rec``."""
+    # ---------------------------------------------------------------- a recording
+    def _rows(self, rec: Recording, first_dt: float = 0.0) -> dict:
+        """The kernel inputs of ``rec``'s rows: ``dt`` (N,) s (``first_dt`` at row 0), the
+        measured ``mag_b``, ``sun_b`` (b) with ``sun_valid``, their models ``b_o`` (the
+        on-board field model ``extra['b_o_model_nT']``, else the true ``b_o_nT``), ``s_o``
+        (o), ``w_io_o`` (``extra['w_io_o']``, else ``[0, −orbit_rate, 0]``), the known
+        inputs ``h``, ``hdot`` (the wheels) and ``tau`` (the magnetorquer's ``m × B``),
+        zero without ``control_inputs``."""
+        p = self.params
+        n = len(rec)
+        dt = np.empty(n)
+        dt[0] = first_dt
+        dt[1:] = np.diff(rec.t)
+
+        def series(name):
+            v = _series(rec, name)
+            return v if p.control_inputs else np.zeros_like(v)
+
+        c = np.ascontiguousarray
+        b_o = rec.extra.get("b_o_model_nT")
+        w_io = rec.extra.get("w_io_o")
+        return {"dt": dt, "mag_b": c(rec.mag, float),
+                "b_o": c(rec.extra["b_o_nT"] if b_o is None else b_o, float),
+                "sun_b": c(rec.sun, float), "s_o": c(rec.extra["s_o"], float),
+                "sun_valid": c(rec.sun_valid, bool),
+                "w_io_o": (np.tile(self._w_io0, (n, 1)) if w_io is None
+                           else c(np.asarray(w_io, float).reshape(n, 3))),
+                "h": series("h_wheel_b_Nms"), "hdot": series("hdot_wheel_b_Nm"),
+                "tau": c(np.cross(series("m_dipole_b_Am2"), rec.mag_tesla))}
+
+    def buffer_inputs(self, rec: Recording):
+        """``rec`` as ``update_many`` takes it: ``((dt, gyro), {mag_b, mag_ref_o, sun_b (NaN
+        where not valid), sun_ref_o, w_io_o_rad_s, h_b_Nms, hdot_b_Nm, tau_b_Nm})``."""
+        x = self._rows(rec)
+        return (x["dt"], rec.gyro), {
+            "mag_b": x["mag_b"], "mag_ref_o": x["b_o"],
+            "sun_b": np.where(x["sun_valid"][:, None], x["sun_b"], np.nan),
+            "sun_ref_o": x["s_o"], "w_io_o_rad_s": x["w_io_o"], "h_b_Nms": x["h"],
+            "hdot_b_Nm": x["hdot"], "tau_b_Nm": x["tau"]}
+
+    def sample_inputs(self, rec: Recording):
+        """The rows of ``rec`` as ``update`` takes them (the sun None where not valid)."""
+        args, kwargs = self.buffer_inputs(rec)
+        for k in range(len(args[0])):
+            kw = {key: v[k] for key, v in kwargs.items()}
+            if not np.all(np.isfinite(kw["sun_b"])):
+                kw["sun_b"] = kw["sun_ref_o"] = None
+            yield (args[0][k], args[1][k]), kw
+
+    def prepare(self, rec: Recording, inertia=None) -> None:
+        """What ``run(rec)`` does before its first sample: the coefficients of ``rec`` (the
+        inertia ``inertia`` (3, 3), else the on-board model ``extra.inertia_model_kg_m2``
+        when ``inertia_from_recording``, else the params'; the gravity gradient from the
+        mean ``|w_io_o|``) and, for a fresh filter, the initial state (TRIAD at the first
+        usable sample, the orbit-fixed rate)."""
+        self._prepare(rec, self._rows(rec), inertia)
+
+    def _prepare(self, rec: Recording, x: dict, inertia) -> None:
         from gnomon.kernels.ekf_spacecraft import coefficients
 
         p = self.params
@@ -276,49 +399,50 @@ class EKFSpacecraft(Estimator):
             J = np.asarray(rec.extra["inertia_model_kg_m2"][0], float)
         else:
             J = self.inertia
-        inp = reference_inputs(rec, p.orbit_rate_rad_s)
-        mag_T = rec.mag_tesla
+        n_orb = float(np.mean(np.linalg.norm(x["w_io_o"], axis=1)))
+        self._coef = coefficients(p, J, 3.0 * n_orb**2 if p.gravity_gradient else 0.0)
+        self._reset_sample_path()  # the sample kernel takes the new coefficients
+        if self.state is None:
+            inp = reference_inputs(rec, p.orbit_rate_rad_s)
+            q0 = _initial_q(rec, inp)
+            w0 = quat_rotate(quat_conj(q0), inp["w_io_o"][0])  # orbit-fixed rate: first guess
+            self.state = self._new_state(np.concatenate([w0, q0]))
 
-        def series(name):
-            v = _series(rec, name)
-            return v if p.control_inputs else np.zeros_like(v)
-
-        tau = np.ascontiguousarray(np.cross(series("m_dipole_b_Am2"), mag_T))
-        n_orb = float(np.mean(np.linalg.norm(inp["w_io_o"], axis=1)))
-        gg = 3.0 * n_orb**2 if p.gravity_gradient else 0.0
-        q0 = _initial_q(rec, inp)
-        w0 = quat_rotate(quat_conj(q0), inp["w_io_o"][0])  # orbit-fixed rate: first guess
-        inputs = (inp["dt"], inp["mag_u"], inp["sun_u"], inp["sun_valid"], inp["b_o_u"],
-                  inp["s_o_u"], inp["w_io_o"], series("h_wheel_b_Nms"),
-                  series("hdot_wheel_b_Nm"), tau)
-        return coefficients(p, J, gg), np.concatenate([w0, q0]), inputs
-
-    def run(self, rec: Recording, compiled: bool = True, inertia=None) -> Estimate:
-        """Whole recording. ``inertia`` (3, 3) overrides the params' diagonal tensor (used by
-        the uncertainty campaigns); ``compiled=False`` runs the interpreted twin."""
+    def _batch(self, x: dict, t, compiled: bool = True) -> Estimate:
+        """The rows ``x`` (``_rows``) through ``ekf_batch`` (or its ``py_func``),
+        continuing the state."""
         from gnomon.kernels.ekf_spacecraft import ekf_batch
 
-        self.check_inputs(rec)
-        c, z0, inputs = self._setup(rec, inertia)
-        first = 1 if self.state is None else 0  # a fresh filter starts at row 0
-        if first:
-            self.state = self._new_state(z0)
-        else:
-            inputs[0][0] = self.first_dt(rec)
-        n = len(rec)
+        n = len(x["dt"])
         z, pd, innov = np.empty((n, 7)), np.empty((n, 7)), np.empty((n, 2))
         fn, state = ekf_batch, self.state
         if not compiled:
             fn, state = getattr(fn, "py_func", fn), state.view(np.recarray)
-        fn(c, state, first, *inputs, z, pd, innov)
-        self.t_last = float(rec.t[-1])
+        fn(self._coef, state, *(x[k] for k in ("dt", "mag_b", "b_o", "sun_b", "s_o",
+                                               "sun_valid", "w_io_o", "h", "hdot", "tau")),
+           z, pd, innov)
         return Estimate(
-            t=rec.t, q=z[:, 3:7], estimator=self.name, params=self.params.as_dict(),
-            frames={"reference": rec.frames.get("reference", "o"),
-                    "body": rec.frames.get("body", "b")},
+            t=np.asarray(t, float), q=z[:, 3:7], estimator=self.name,
+            params=self.params.as_dict(), frames={"reference": "o", "body": "b"},
             signals={"w_ib_b_rad_s": z[:, 0:3], "p_diag": pd, "innovation_mag": innov[:, 0],
                      "innovation_sun": innov[:, 1]},
         )
+
+    def run(self, rec: Recording, compiled: bool = True, inertia=None) -> Estimate:
+        """Whole recording (``prepare``, then its rows as ``update_many`` takes them).
+        ``inertia`` (3, 3) overrides the params' diagonal tensor (used by the uncertainty
+        campaigns); ``compiled=False`` runs the interpreted twin."""
+        self.check_inputs(rec)
+        x = self._rows(rec, self.first_dt(rec))
+        self._prepare(rec, x, inertia)
+        est = self._batch(x, rec.t, compiled)
+        self.t_last = float(rec.t[-1])
+        est.frames = {"reference": rec.frames.get("reference", "o"),
+                      "body": rec.frames.get("body", "b")}
+        return est
+
+
+_ZERO3 = np.zeros(3)  # a known input not given: zero (never written)
 
 
 def _vector(v) -> np.ndarray:

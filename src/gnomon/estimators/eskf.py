@@ -33,12 +33,14 @@ Measurement models (magnetometer normalised by the reference field magnitude
 Both ``D`` are checked against finite differences of the measurement functions
 in ``tests/test_eskf.py``. The update is the Joseph form, symmetrised.
 
-Two twins of one filter: ``Eskf.run`` calls the compiled kernel
-``gnomon.kernels.eskf``; ``Eskf.update(dt_s, gyro_rad_s, accel_m_s2, mag_uT)`` (streaming,
-``None`` = no new sample) runs the readable functions here (numpy matrices) in the
-kernel's phases — prediction, gates and reference field, accelerometer low-pass,
-measurement, correction — on the same ``STATE`` record; the tests compare the two
-step by step. The operation counts of the paper's comparison (``count_gain_operations``,
+Two twins of one filter, on the same ``STATE`` record: the compiled kernel
+``gnomon.kernels.eskf`` runs ``update(dt_s, gyro_rad_s, accel_m_s2, mag_uT)`` (one sample,
+``eskf_sample``), ``update_many`` (a buffer) and ``run`` (a recording), so any split of a
+recording into such calls gives ``run``'s result; ``update_reference`` (same arguments)
+runs the readable functions of ``gnomon.estimators.eskf_model`` (numpy matrices,
+re-exported here) in the kernel's phases — prediction, gates and reference field,
+accelerometer low-pass, measurement, correction — and the tests compare the two sample
+by sample. The operation counts of the paper's comparison (``count_gain_operations``,
 ``count_update_operations``) run the kernel's correction source on ``Traced`` numbers.
 
 Beyond the paper (which assumes no linear acceleration, an undisturbed field
@@ -75,10 +77,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.errors import InputError
+from gnomon.estimators.base import CompiledIMUUpdate, Estimate, Estimator, Params, imu_buffer, param
+from gnomon.estimators.eskf_model import (
+    MAX_ABS_DIP,
+    accel_lowpass,
+    continuous_matrix,
+    gate_factor,
+    measurement_function_r3,
+    measurement_function_r6,
+    measurement_matrix_r3_nav,
+    measurement_r3,
+    measurement_r6,
+    process_noise,
+    propagate,
+    reference_field,
+    transition_matrix,
+    update,
+    update_dip,
+)
 from gnomon.estimators.initial import initial_attitude
 from gnomon.recording import MAG_UNITS_TO_TESLA, Recording
-from gnomon.rotation import dcm_from_quat, quat_from_rotvec, quat_mul, skew
+from gnomon.rotation import dcm_from_quat
 
 __all__ = [
     "EskfParams", "EskfR6Params", "EskfR3Params", "Eskf", "EskfR6", "EskfR3",
@@ -88,151 +108,6 @@ __all__ = [
     "count_gain_operations", "count_update_operations", "paper_gain_operations",
     "trace_update", "UpdateTrace", "OpTape", "Traced", "continuous_matrix",
 ]
-
-
-# ---------------------------------------------------------------- model (readable reference)
-def transition_matrix(w_hat_b, dt: float) -> np.ndarray:
-    """First-order transition ``Φ = I + F dt``, ``F = [-[ω̂×]  -½I; 0  0]`` (6x6).
-
-    ``w_hat_b`` (3,) bias-corrected rate, rad/s, body frame; ``dt`` s.
-    """
-    F = continuous_matrix(w_hat_b)
-    return np.eye(6) + F * dt
-
-
-def continuous_matrix(w_b) -> np.ndarray:
-    """The paper's ``F = [-[ω×]  -½I₃; 0₃  0₃]`` (6x6) for the rate ``w_b`` (rad/s, body)."""
-    F = np.zeros((6, 6))
-    F[:3, :3] = -skew(np.asarray(w_b, float))
-    F[:3, 3:] = -0.5 * np.eye(3)
-    return F
-
-
-def process_noise(dt: float, gyro_noise: float, bias_rw: float) -> np.ndarray:
-    """Discrete ``Q = diag(¼ σ_g² dt I, σ_b² dt I)``: gyro noise density σ_g (rad/s/√Hz)
-    enters ``δė`` with the factor -½; bias random walk σ_b (rad/s/√s)."""
-    return np.diag([0.25 * gyro_noise**2 * dt] * 3 + [bias_rw**2 * dt] * 3)
-
-
-def propagate(q, b, P, gyro_b, dt, gyro_noise, bias_rw):
-    """Strapdown step: ``q ← normalise(q ⊗ exp((ω̃ - b̂) dt))``, ``P ← Φ P Φᵀ + Q`` (symmetrised).
-
-    q (4,) ``q_nb``; b (3,) bias estimate rad/s; P (6, 6); gyro_b (3,) rad/s.
-    Returns new ``(q, P)``.
-    """
-    w = np.asarray(gyro_b, float) - b
-    q = quat_mul(q, quat_from_rotvec(w * dt))
-    q = q / np.linalg.norm(q)
-    Phi = transition_matrix(w, dt)
-    P = Phi @ P @ Phi.T + process_noise(dt, gyro_noise, bias_rw)
-    return q, 0.5 * (P + P.T)
-
-
-def measurement_function_r6(q, g, mag_h, mag_z) -> np.ndarray:
-    """Predicted ``[Ĉ_bn g_n; Ĉ_bn m_n]`` (6,) for ``q = q_nb`` (noise-free readings in body)."""
-    C_bn = dcm_from_quat(q).T
-    return np.concatenate([C_bn @ [0.0, 0.0, g], C_bn @ [0.0, mag_h, -mag_z]])
-
-
-def measurement_r6(q, accel_b, mag_b, g, mag_h, mag_z):
-    """Full model: innovation ``y`` (6,) and ``D`` (6, 6) = ``[2[â×] 0; 2[m̂×] 0]``."""
-    h = measurement_function_r6(q, g, mag_h, mag_z)
-    y = np.concatenate([accel_b, mag_b]) - h
-    D = np.zeros((6, 6))
-    D[:3, :3] = 2.0 * skew(h[:3])
-    D[3:, :3] = 2.0 * skew(h[3:])
-    return y, D
-
-
-def measurement_function_r3(q, accel_b, mag_b, g, mag_h) -> np.ndarray:
-    """``[ã_x/g, ã_y/g, m̃_x/H]`` with ``ã = Ĉ_nb a``, ``m̃ = Ĉ_nb m`` for the estimate ``q``."""
-    C_nb = dcm_from_quat(q)
-    a_n = C_nb @ accel_b
-    m_n = C_nb @ mag_b
-    return np.array([a_n[0] / g, a_n[1] / g, m_n[0] / mag_h])
-
-
-def measurement_matrix_r3_nav(tan_i: float) -> np.ndarray:
-    """``D_n`` (3x3): reduced measurement vs the error rotation in the computed navigation frame.
-
-    The paper prints ``[[0, 2, 0], [-2, 0, 0], [0, -2 tan I, -2]] = -D_n`` for its
-    own error definition.
-    """
-    return np.array([[0.0, -2.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0 * tan_i, 2.0]])
-
-
-def measurement_r3(q, accel_b, mag_b, g, mag_h, mag_z):
-    """Reduced model: measurement ``y`` (3,) (predicted 0), ``D`` (3, 6) = ``[D_n Ĉ_nb 0]``."""
-    y = measurement_function_r3(q, accel_b, mag_b, g, mag_h)
-    D = np.zeros((3, 6))
-    D[:, :3] = measurement_matrix_r3_nav(mag_z / mag_h) @ dcm_from_quat(q)
-    return y, D
-
-
-def update(q, b, P, y, D, R, bias_limit: float = np.inf):
-    """Kalman update (Joseph form, symmetrised) and injection of the error estimate; each
-    component of the bias stays within ``±bias_limit`` (rad/s).
-
-    Returns ``(q, b, P, dx)`` with ``dx = K y`` the estimated error ``[δe; δb]``.
-    """
-    S = D @ P @ D.T + R
-    K = np.linalg.solve(S, D @ P).T          # P Dᵀ S⁻¹ (S, P symmetric)
-    dx = K @ y
-    IKD = np.eye(6) - K @ D
-    P = IKD @ P @ IKD.T + K @ R @ K.T
-    P = 0.5 * (P + P.T)
-    q = quat_mul(q, np.array([1.0, dx[0], dx[1], dx[2]]))
-    q = q / np.linalg.norm(q)
-    return q, np.clip(b + dx[3:], -bias_limit, bias_limit), P, dx
-
-
-# ---------------------------------------------------------------- initialisation
-def accel_lowpass(q_nb, accel_b, lp_n, w: float):
-    """Low-pass of the accelerometer in the computed navigation frame.
-
-    ``lp_n ← lp_n + w (Ĉ_nb a - lp_n)`` (``lp_n`` None or ``w = 1``: restart), returns
-    ``(Ĉ_bn lp_n, lp_n)``: the filtered reading in the body frame and the new state.
-    Gravity is constant in the navigation frame while a linear acceleration averages
-    out there (cf. VQF's inertial-frame low-pass, Laidig & Seel, Inf. Fusion 2023).
-    """
-    C = dcm_from_quat(q_nb)
-    a_n = C @ np.asarray(accel_b, float)
-    lp = a_n.copy() if lp_n is None else lp_n + w * (a_n - lp_n)
-    return C.T @ lp, lp
-
-
-#: |sin I| at most (inclination below 87.4 deg) for the reference field: nearer the pole
-#: (or with |a| > g making a·m/(g|m|) exceed 1) H = sqrt(1 - s²) would vanish or be NaN
-_MAX_ABS_DIP = 0.999
-
-
-def update_dip(dip_s: float, count: float, accel_b, mag_b, dt: float, tau: float, g: float):
-    """Running mean of ``a·m / (g |m|)`` ≈ ``cos(angle(a, m))`` = ``-Z`` of the normalised
-    field (rotation invariant, so it can be averaged while the body moves; dividing by
-    ``g`` rather than ``|a|`` keeps accelerometer noise from biasing it: ``E|a| > g``).
-
-    ``count += 1``, ``w = max(1/count, dt/tau)``, ``s += w (cos - s)``; ``tau <= 0``
-    leaves it unchanged. Returns ``(s, count)`` with ``|s| <= 0.999``; the reference is
-    ``Z = -s``, ``H = sqrt(1 - s²)``.
-    """
-    if tau <= 0.0:
-        return dip_s, count
-    a = np.asarray(accel_b, float)
-    m = np.asarray(mag_b, float)
-    count = count + 1.0
-    w = max(1.0 / count, dt / tau)
-    cos = (a @ m) / (g * np.sqrt(m @ m))
-    s = dip_s + w * (cos - dip_s)
-    return min(max(s, -_MAX_ABS_DIP), _MAX_ABS_DIP), count
-
-
-def reference_field(q_nb, mag_b) -> tuple[float, float, float]:
-    """``(|B0|, H, Z)``: field magnitude (input unit) and normalised horizontal / downward
-    components of ``mag_b`` seen in the navigation frame of ``q_nb``."""
-    m = np.asarray(mag_b, float)
-    b0 = float(np.linalg.norm(m))
-    m_n = dcm_from_quat(q_nb) @ (m / b0)
-    return b0, float(np.hypot(m_n[0], m_n[1])), float(-m_n[2])
 
 
 # ---------------------------------------------------------------- parameters & class
@@ -323,15 +198,23 @@ class EskfR3Params(EskfParams):
 _TESLA_PER_UT = MAG_UNITS_TO_TESLA["uT"]
 
 
-class Eskf(Estimator):
+def _new(v):
+    """A sample, or None for none (None or a non-finite component: no new sample)."""
+    return None if v is None or not np.all(np.isfinite(v)) else v
+
+
+class Eskf(CompiledIMUUpdate, Estimator):
     """Error-state quaternion KF AHRS (seed 002); see the module docstring.
 
     The evolving state is one ``gnomon.kernels.eskf.STATE`` record (``state``, an array of
     one element: ``q`` = ``q_nb``, ``bias`` rad/s, ``P`` (6, 6), the inclination estimate
     and the accelerometer low-pass), with the reference magnitude ``b0_mag`` (tesla) and
-    ``t_last``. ``run(rec)`` continues it with the compiled kernel; ``update(...)`` with the
-    readable reference of the same phases (slow; streaming use). The first sample
-    initialises it (TRIAD).
+    ``t_last``. ``run(rec)``, ``update_many(...)`` (a buffer) and ``update(...)`` (one
+    sample) continue it with the compiled kernel; ``update_reference(...)`` with the
+    readable reference of the same phases. ``run`` starts a fresh filter from the first
+    ``init_time`` of its recording (``prepare``), ``update``/``update_many`` from their
+    first sample (TRIAD). ``flags``: what the last ``update`` did (``update_skipped``,
+    ``bias_at_limit``, as the signals); ``innovation`` its measurement.
     Signals: ``bias_rad_s`` (N, 3), ``bias_at_limit`` (N,) (a component of the bias
     estimate at ``bias_limit``: the true bias may be larger, or the estimate ran into the
     bound; ``gnomon estimate`` warns), ``innovation`` (N, r), ``cov_diag`` (N, 6)
@@ -352,12 +235,67 @@ class Eskf(Estimator):
     #: Signals ``*_at_limit`` -> (parameter of the bound, its unit, what reached it): read
     #: by ``gnomon estimate`` for its warnings.
     limits = {"bias_at_limit": ("bias_limit", "rad/s", "gyro bias estimate")}
+    flag_bits = {"update_skipped": 1, "bias_at_limit": 2}  # kernels.eskf_sample's bits
 
     def reset(self) -> None:
         self.state = None       # gnomon.kernels.eskf.STATE array of one element, once started
         self.b0_mag = None      # reference field magnitude, tesla
         self.t_last = None      # s, last sample processed by ``run``
-        self.innovation = None  # (r,) measurement of the last ``update`` (zeros: none used)
+        self._reset_sample_path()
+
+    @property
+    def b0_mag(self) -> float | None:
+        """Reference field magnitude (tesla) that the magnetometer is normalised by."""
+        return self._b0_mag
+
+    @b0_mag.setter
+    def b0_mag(self, value: float | None) -> None:
+        # ``update``'s record holds the magnetometer's scale: built again at the next call
+        self._b0_mag = value
+        self._sample = self._record = None
+
+    def _reset_sample_path(self) -> None:
+        super()._reset_sample_path()
+        self._record = None
+
+    def _sample_record(self) -> np.ndarray:
+        """``update``'s coefficients and work arrays (``gnomon.kernels.eskf_sample``)."""
+        if self._record is None:
+            from gnomon.kernels.eskf import coefficients
+            from gnomon.kernels.eskf_sample import sample_record
+
+            self._record = sample_record(coefficients(self.params), self.b0_mag,
+                                         _TESLA_PER_UT)
+        return self._record
+
+    def _sample_kernel(self, dt_s, accel, mag):
+        """``update``'s kernel (``CompiledIMUUpdate``): ``eskf_sample``; a fresh filter
+        starts from this first sample (``_start``)."""
+        from gnomon.kernels.eskf_sample import eskf_sample
+
+        if self.state is None:
+            self._start(accel, mag)
+        return eskf_sample, self._sample_record()
+
+    def _start(self, accel_m_s2, mag_uT) -> None:
+        """Initialise from one sample (m/s², µT; None or NaN: none, as a dropout)."""
+        a, m = _new(accel_m_s2), _new(mag_uT)
+        self._init_state(np.zeros(3) if a is None else a,
+                         np.zeros(3) if m is None else m * _TESLA_PER_UT)
+
+    @property
+    def innovation(self) -> np.ndarray | None:
+        """The measurement ``y`` (r,) of the last ``update`` or ``update_reference``: zeros
+        when not both sensors had a usable sample (prediction only, or one sensor's rows);
+        None before either."""
+        from gnomon.kernels.eskf_sample import SAMPLE_Y
+
+        if self._record is None or self.state is None:
+            return None
+        r = 6 if self.params.measurement == "r6" else 3
+        if self._flags & 1:
+            return np.zeros(r)
+        return self._record["work"][0, SAMPLE_Y:SAMPLE_Y + r].copy()
 
     # ------------------------------------------------------------ state views
     @property
@@ -409,44 +347,49 @@ class Eskf(Estimator):
                else (-float(np.sin(np.radians(60.0))), 1.0))
         if p.inclination_known:
             dip = (-float(np.sin(p.inclination)), float(max(len(cos), 1)))
-        if abs(dip[0]) > _MAX_ABS_DIP:  # field along gravity: heading unobservable for now;
+        if abs(dip[0]) > MAX_ABS_DIP:  # field along gravity: heading unobservable for now;
             # keep the filter running (H > 0) and let the running mean learn the real dip
-            dip = (float(np.clip(dip[0], -_MAX_ABS_DIP, _MAX_ABS_DIP)), dip[1])
+            dip = (float(np.clip(dip[0], -MAX_ABS_DIP, MAX_ABS_DIP)), dip[1])
         P = np.diag([(0.5 * p.init_att_std) ** 2] * 3 + [p.init_bias_std**2] * 3)
         self.state = new_state(q, np.zeros(3), P, dip[0], dip[1])
 
     # ------------------------------------------------------------ readable twin
-    def update(self, dt_s: float, gyro_rad_s=None, accel_m_s2=None, mag_uT=None):
-        """One sample with the readable reference; returns ``q_nb`` (4,) after it.
+    def update_reference(self, dt_s: float, gyro_rad_s=None, accel_m_s2=None, mag_uT=None):
+        """The readable twin of ``update`` (numpy, one sample; the tests hold the compiled
+        paths to it sample by sample): same arguments and result, same ``flags`` and
+        ``innovation``; ``gyro_rad_s`` None also allowed: no prediction.
 
         ``dt_s`` s since the previous sample (0 at the first); gyro rad/s, accelerometer
-        m/s², magnetometer µT, body frame. ``None`` = no new sample of that sensor (as a
-        zero-vector dropout): without the gyro there is no prediction; with only one of
-        the accelerometer and the magnetometer, that sensor's rows of the measurement
-        model correct the state (``_one_sensor``; each sensor at its own rate). Phases as
-        the kernel's ``step``: ``propagate`` (gyro), ``_reference_and_gates``,
+        m/s², magnetometer µT, body frame. ``None`` (or a non-finite component) = no new
+        sample of that sensor (as a zero-vector dropout); with only one of the
+        accelerometer and the magnetometer, that sensor's rows of the measurement model
+        correct the state (``_one_sensor``; each sensor at its own rate). Phases as the
+        kernel's ``step_row``: ``propagate`` (gyro), ``_reference_and_gates``,
         ``_bias_gate``, ``_accel_lowpass``, ``measurement_r6`` / ``_r3``, ``_correct``
         (``update``, the bias held while the gate is shut, the low-pass following).
         """
         p = self.params
-        a = None if accel_m_s2 is None else np.asarray(accel_m_s2, float)
-        m = None if mag_uT is None else np.asarray(mag_uT, float) * _TESLA_PER_UT
+        if gyro_rad_s is not None and not np.all(np.isfinite(gyro_rad_s)):
+            raise InputError(f"non-finite value {np.asarray(gyro_rad_s).tolist()} (the "
+                             "sample was not used)", field="gyro_rad_s")
+        a, m = _new(accel_m_s2), _new(mag_uT)
+        a = None if a is None else np.asarray(a, float)
+        m = None if m is None else np.asarray(m, float) * _TESLA_PER_UT
         if self.state is None:
             self._init_state(np.zeros(3) if a is None else a, np.zeros(3) if m is None else m)
         s = self._s
         if gyro_rad_s is not None:
             s.q, s.P = propagate(s.q, s.bias, s.P, gyro_rad_s, dt_s, p.gyro_noise, p.bias_rw)
-        self.innovation = np.zeros(6 if p.measurement == "r6" else 3)
         s.since_acc_s += dt_s
         if m is not None:
             m = m / self.b0_mag
         na = float(np.linalg.norm(a)) if a is not None else 0.0
         nm = float(np.linalg.norm(m)) if m is not None else 0.0
         if not (na > 0 or nm > 0):  # no usable sample: prediction only
-            return s.q.copy()
+            return self._done(s, None)
         if not (na > 0 and nm > 0):  # one sensor alone: its rows of the model
             self._one_sensor(s, a if na > 0 else None, m if nm > 0 else None, na, nm)
-            return s.q.copy()
+            return self._done(s, None)
         fa, fm, h, z = self._reference_and_gates(s, a, m, na, nm, dt_s)
         hold = self._bias_gate(s, na, s.since_acc_s)
         if p.accel_lowpass_tau > 0.0:
@@ -456,7 +399,17 @@ class Eskf(Estimator):
         y, D = meas(s.q, a, m, p.gravity, h, z)
         self._correct(s, y, D, self._R(fa, fm, h), hold,
                       a if p.accel_lowpass_tau > 0.0 else None)
-        self.innovation = y
+        return self._done(s, y)
+
+    def _done(self, s, y):
+        """The end of ``update_reference``: ``flags`` and ``innovation`` as the kernel sets
+        them (``y``: the full measurement, None when not both sensors corrected)."""
+        from gnomon.kernels.eskf_sample import SAMPLE_Y
+
+        at_limit = bool(np.any(np.abs(s.bias) >= self.params.bias_limit))
+        self._flags = (1 if y is None else 0) | (2 if at_limit else 0)
+        if y is not None:
+            self._sample_record()["work"][0, SAMPLE_Y:SAMPLE_Y + len(y)] = y
         return s.q.copy()
 
     def _bias_gate(self, s, na: float, dt: float) -> bool:
@@ -496,14 +449,14 @@ class Eskf(Estimator):
         accel_alone = a is not None
         hold = self._bias_gate(s, na, s.since_acc_s) if accel_alone else self._bias_held(s)
         if accel_alone:
-            fa, fm = _gate(abs(na - p.gravity), p.accel_gate), 1.0
+            fa, fm = gate_factor(abs(na - p.gravity), p.accel_gate), 1.0
             if p.accel_lowpass_tau > 0.0:
                 a = self._accel_lowpass(s, a, s.since_acc_s)
             s.since_acc_s = 0.0
             m = np.zeros(3)
         else:
             up = (dcm_from_quat(s.q) @ m)[2] / nm
-            fa, fm = 1.0, _gate(max(abs(nm - 1.0), abs(up - s.dip_s)), p.mag_gate)
+            fa, fm = 1.0, gate_factor(max(abs(nm - 1.0), abs(up - s.dip_s)), p.mag_gate)
             a = np.zeros(3)
         meas = measurement_r6 if p.measurement == "r6" else measurement_r3
         y, D = meas(s.q, a, m, p.gravity, h, z)
@@ -521,9 +474,9 @@ class Eskf(Estimator):
         the inclination estimate ``s.dip_s`` (``update_dip``; frozen while a gate is at 2
         or more). ``na``, ``nm``: norms of ``a`` (m/s²) and the normalised ``m``."""
         p = self.params
-        fa = _gate(abs(na - p.gravity), p.accel_gate)
+        fa = gate_factor(abs(na - p.gravity), p.accel_gate)
         cos_am = (a @ m) / (p.gravity * nm)
-        fm = _gate(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), p.mag_gate)
+        fm = gate_factor(max(abs(nm - 1.0), abs(cos_am - s.dip_s)), p.mag_gate)
         tau = 0.0 if (p.inclination_known or fa >= 2.0 or fm >= 2.0) else p.dip_tau
         s.dip_s, s.dip_count = update_dip(s.dip_s, s.dip_count, a, m, dt, tau, p.gravity)
         return fa, fm, float(np.sqrt(1.0 - s.dip_s**2)), float(-s.dip_s)
@@ -546,65 +499,89 @@ class Eskf(Estimator):
         return np.diag([ra, ra, p.mag_noise**2 * fm / h**2])
 
     # ------------------------------------------------------------ compiled batch
+    def prepare(self, rec: Recording) -> None:
+        """Start as ``run`` starts a fresh filter: TRIAD on the mean accelerometer and
+        magnetometer over the first ``init_time`` seconds of ``rec`` (at least one sample),
+        the reference field ``[0, H, -Z]`` and ``|B0|`` from the same samples."""
+        t0 = rec.t[0] + self.params.init_time
+        n_acc = max(1, int(np.searchsorted(rec.times("accel"), t0, side="right")))
+        n_mag = max(1, int(np.searchsorted(rec.times("mag"), t0, side="right")))
+        n = min(n_acc, n_mag)  # the first samples of each (pairs for the TRIAD)
+        self._init_state(rec.accel[:n], rec.mag[:n] * MAG_UNITS_TO_TESLA[rec.mag_unit])
+
+    def buffer_inputs(self, rec: Recording):
+        """``rec`` as ``update_many`` takes it (the IMU form, the magnetometer in µT)."""
+        (dt, gyro, acc, mag), kwargs = super().buffer_inputs(rec)
+        if rec.mag_unit != "uT":
+            mag = mag * (MAG_UNITS_TO_TESLA[rec.mag_unit] / _TESLA_PER_UT)
+        return (dt, gyro, acc, mag), kwargs
+
     def _kernel_inputs(self, rec: Recording):
-        """The compiled kernel's ``Inputs`` for ``rec`` (checked), the filter initialised
-        when fresh (TRIAD, below): the gyro, each other sensor on the gyro's time base
-        (NaN rows: no new sample), the magnetometer normalised by ``|B0|``, the intervals.
-        Shared with the offline smoother (``gnomon.estimators.eskf_offline``)."""
+        """The compiled kernel's ``Inputs`` for ``rec`` (checked), the filter started when
+        fresh (``prepare``): the gyro, each other sensor on the gyro's time base (NaN rows:
+        no new sample), the magnetometer normalised by ``|B0|``, the intervals. Shared
+        with the offline smoother (``gnomon.estimators.eskf_offline``)."""
         from gnomon.kernels import eskf as kern
 
         self.check_inputs(rec)
-        p = self.params
-        to_tesla = MAG_UNITS_TO_TESLA[rec.mag_unit]
         dt = np.empty(len(rec))
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
         if self.state is None:
-            t0 = rec.t[0] + p.init_time
-            n_acc = max(1, int(np.searchsorted(rec.times("accel"), t0, side="right")))
-            n_mag = max(1, int(np.searchsorted(rec.times("mag"), t0, side="right")))
-            n = min(n_acc, n_mag)  # the first samples of each (pairs for the TRIAD)
-            self._init_state(rec.accel[:n], rec.mag[:n] * to_tesla)
+            self.prepare(rec)
         # each sensor at its own rate: a correction needs a new accelerometer and a new
         # magnetometer sample in the same row (the model and its gates use both); other
         # rows only predict
-        mag = rec.on_time_base("mag") * to_tesla  # a new array: scaled in place below
+        mag = rec.on_time_base("mag") * MAG_UNITS_TO_TESLA[rec.mag_unit]  # a new array
         mag /= self.b0_mag
         return kern.Inputs(np.ascontiguousarray(rec.gyro, float),
                            np.ascontiguousarray(rec.on_time_base("accel"), float),
                            np.ascontiguousarray(mag), dt)
 
-    def run(self, rec: Recording) -> Estimate:
-        """Filter a whole recording (compiled kernel), continuing from the current state
-        (a fresh or reset filter starts anew).
+    def update_many(self, dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None, *,
+                    t_s=None) -> Estimate:
+        """A buffer of N samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s (each since the previous sample), ``gyro_rad_s`` (N, 3) rad/s,
+        ``accel_m_s2`` (N, 3) m/s², ``mag_uT`` (N, 3) µT, body frame, with NaN rows where
+        that sensor has no new sample (None: none at all). ``t_s`` (N,) the samples' times
+        for the returned ``Estimate`` (default: the running sum of ``dt_s``); its signals
+        as ``run``'s. A fresh filter starts from the first row (as ``update``)."""
+        from gnomon.kernels import eskf as kern
 
-        Initialisation: TRIAD on the mean accelerometer and magnetometer over the
-        first ``init_time`` seconds (at least one sample); the reference field
-        ``[0, H, -Z]`` and ``|B0|`` are taken from the same samples.
-        """
+        dt, gyro, acc, mag = imu_buffer(dt_s, gyro_rad_s, accel_m_s2, mag_uT)
+        if self.state is None:
+            self._start(acc[0] if len(dt) else None, mag[0] if len(dt) else None)
+        mag = mag * _TESLA_PER_UT  # a new array: scaled in place below, as ``run``'s
+        mag /= self.b0_mag
+        inputs = kern.Inputs(np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
+                             np.ascontiguousarray(mag), np.ascontiguousarray(dt))
+        return self._batch(inputs, np.cumsum(dt) if t_s is None else np.asarray(t_s, float),
+                           "sensor")
+
+    def _batch(self, inputs, t: np.ndarray, body: str) -> Estimate:
+        """``run_batch`` over ``inputs`` (checked, normalised) from the current state."""
         from gnomon.kernels import eskf as kern
 
         p = self.params
-        inputs = self._kernel_inputs(rec)
-        out = kern.new_outputs(len(rec))
+        out = kern.new_outputs(len(inputs.dt))
         kern.run_batch(inputs, self.state, kern.coefficients(p), out)
-        self.t_last = float(rec.t[-1])
         r = 6 if p.measurement == "r6" else 3
         return Estimate(
-            t=rec.t.copy(), q=out.q, estimator=self.name, params=p.as_dict(),
-            frames={"reference": "ENU", "body": rec.frames.get("body", "sensor")},
+            t=t, q=out.q, estimator=self.name, params=p.as_dict(),
+            frames={"reference": "ENU", "body": body},
             signals={"bias_rad_s": out.bias,
                      "bias_at_limit": out.at_limit,
                      "innovation": out.innovation[:, :r],
                      "cov_diag": out.cov_diag, "update_skipped": out.skipped},
         )
 
-
-def _gate(dev: float, gate: float) -> float:
-    """Variance inflation ``1 + (dev/gate)²`` (1 when ``gate <= 0``), as the kernel."""
-    if gate <= 0.0:
-        return 1.0
-    return 1.0 + (dev / gate) ** 2
+    def run(self, rec: Recording) -> Estimate:
+        """Filter a whole recording (compiled kernel), continuing from the current state
+        (a fresh or reset filter starts anew: ``prepare``)."""
+        inputs = self._kernel_inputs(rec)
+        est = self._batch(inputs, rec.t.copy(), rec.frames.get("body", "sensor"))
+        self.t_last = float(rec.t[-1])
+        return est
 
 
 class EskfR6(Eskf):

@@ -95,6 +95,13 @@ class EskfOffline(EskfR3):
         raise InputError("eskf-offline needs the whole recording (run); the streaming "
                          "filter is eskf-r3", field="update")
 
+    update_reference = update
+
+    def update_many(self, *args, **kwargs):
+        """Not available either (``update``)."""
+        raise InputError("eskf-offline needs the whole recording (run); the streaming "
+                         "filter is eskf-r3", field="update_many")
+
     def run(self, rec: Recording) -> Estimate:
         """Smooth a whole recording (``smooth`` without the covariance)."""
         return self.smooth(rec)

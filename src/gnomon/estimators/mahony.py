@@ -41,8 +41,16 @@ from typing import ClassVar
 import numpy as np
 
 from gnomon.errors import InputError
-from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.base import (
+    CompiledIMUUpdate,
+    Estimate,
+    Estimator,
+    Params,
+    imu_buffer,
+    param,
+)
 from gnomon.estimators.initial import attitude_from_acc_mag, initial_attitude
+from gnomon.kernels.entry import record
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 
@@ -68,6 +76,11 @@ class MahonyParams(Params):
         self._require("max_dt_s", self.max_dt_s > 0, "must be > 0")
 
 
+def _new(v):
+    """A sample, or None for none (None or NaN: no new sample of that sensor)."""
+    return None if v is None or not np.all(np.isfinite(v)) else v
+
+
 def _unit(v):
     if v is None:
         return None, False
@@ -76,7 +89,7 @@ def _unit(v):
     return (v / n, True) if n > 0.0 and np.isfinite(n) else (v, False)
 
 
-class Mahony(Estimator):
+class Mahony(CompiledIMUUpdate, Estimator):
     """Explicit complementary filter (Mahony et al. 2008), 9-axis, ENU; estimate ``q_nb``.
 
     State: ``state``, a one-element ``gnomon.kernels.mahony.STATE`` array (``q``, ``bias``;
@@ -91,10 +104,12 @@ class Mahony(Estimator):
     needs = ("gyro", "accel", "mag")
     multi_rate = True
     state_fields = ("state", "t_last")
+    flag_bits = {"acc_skipped": 1, "mag_skipped": 2, "gap": 4}
 
     def reset(self) -> None:
         self.state = None  # kernels.mahony.STATE (1,), set from the first acc/mag sample
         self.t_last = None  # s, time of the last sample processed by ``run``
+        self._reset_sample_path()
 
     @property
     def q(self) -> np.ndarray | None:
@@ -117,33 +132,79 @@ class Mahony(Estimator):
         self.q = initial_attitude(np.atleast_2d(acc), np.atleast_2d(mag),
                                   self.params.init_samples)
 
-    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, mag_uT=None) -> np.ndarray:
-        """One sample (body frame): gyro rad/s, accelerometer and magnetometer in any unit
-        (only their directions are used; None: no new sample of that sensor). Returns
-        ``q_nb`` (4,). The first call initialises the attitude from ``accel_m_s2``,
-        ``mag_uT`` (both needed)."""
-        p = self.params
+    def _start(self, accel_m_s2, mag_uT) -> None:
+        """The first sample initialises the attitude (both vectors needed)."""
+        if accel_m_s2 is None or mag_uT is None:
+            raise InputError("the first sample needs accelerometer and magnetometer "
+                             "readings (the initial attitude)", field="accel_m_s2, mag_uT")
+        self.initialise(accel_m_s2, mag_uT)
+
+    def _sample_kernel(self, dt_s, accel, mag):
+        """``update``'s kernel (``CompiledIMUUpdate``): ``mahony_sample``; the first sample
+        initialises the attitude."""
+        from gnomon.kernels.mahony import coefficients, mahony_sample
+
         if self.state is None:
-            if accel_m_s2 is None or mag_uT is None:
-                raise InputError("the first sample needs accelerometer and magnetometer "
-                                 "readings (the initial attitude)", field="accel_m_s2, mag_uT")
-            self.initialise(accel_m_s2, mag_uT)
+            self._start(accel, mag)
+        return mahony_sample, record(coefficients(self.params))
+
+    def update_many(self, dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None, *,
+                    t_s=None) -> Estimate:
+        """A buffer of N samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s (each since the previous sample), ``gyro_rad_s`` (N, 3),
+        ``accel_m_s2``, ``mag_uT`` (N, 3) body frame with NaN rows where that sensor has no
+        new sample (None: none at all). ``t_s`` (N,) the samples' times for the returned
+        ``Estimate`` (default: the running sum of ``dt_s``)."""
+        dt, gyro, acc, mag = imu_buffer(dt_s, gyro_rad_s, accel_m_s2, mag_uT)
+        if self.state is None:
+            self._start(*(None if np.isnan(x[0, 0]) else x[0] for x in (acc, mag)))
+        # the multi-rate loop always: a buffer whose rows all hold samples may follow one
+        # whose rows did not (a correction then covers the time since the previous sample)
+        return self._batch(dt, gyro, acc, mag, np.cumsum(dt) if t_s is None else t_s, True)
+
+    def _batch(self, dt, gyro, acc, mag, t_s, multi_rate: bool) -> Estimate:
+        """``update_many`` on checked inputs (``run``'s come from a ``Recording``);
+        ``multi_rate``: some ``acc``/``mag`` rows are NaN (no sample)."""
+        from gnomon.kernels.mahony import coefficients, mahony_batch
+
+        n = len(dt)
+        q_out = np.empty((n, 4))
+        b_out = np.empty((n, 3))
+        flags = np.empty(n, np.uint8)
+        mahony_batch(dt, np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
+                     np.ascontiguousarray(mag), self.state, coefficients(self.params), q_out, b_out,
+                     flags, multi_rate)
+        return Estimate(
+            t=np.asarray(t_s, float), q=q_out,
+            estimator=self.name, params=self.params.as_dict(),
+            frames={"reference": "ENU", "body": "sensor"},
+            signals={"bias_rad_s": b_out, "acc_skipped": (flags & 1) != 0,
+                     "mag_skipped": (flags & 2) != 0, "gap": (flags & 4) != 0},
+        )
+
+    def update_reference(self, dt_s: float, gyro_rad_s, accel_m_s2=None,
+                         mag_uT=None) -> np.ndarray:
+        """The readable twin of ``update`` (numpy, one sample; the tests hold the compiled
+        paths to it sample by sample). Same arguments and result."""
+        p = self.params
+        accel_m_s2, mag_uT = _new(accel_m_s2), _new(mag_uT)
+        if self.state is None:
+            self._start(accel_m_s2, mag_uT)
         s = self.state.view(np.recarray)[0]
         gyro = np.asarray(gyro_rad_s, float)
-        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
+        self._flags = 0
         if dt_s <= 0.0:
             return self.q
         # prediction with the gyro over (t[k-1], t[k]], then correction with the vectors at t[k]
         q = quat_mul(s.q, quat_from_rotvec((gyro - s.bias) * dt_s))
         if dt_s > p.max_dt_s:
-            self.flags["gap"] = True
+            self._flags = 4
             s.q[:] = q / np.linalg.norm(q)
             s.since_acc_s = s.since_mag_s = 0.0
             return self.q
         e_acc, ok_a = self._accel_error(q, accel_m_s2)
         e_mag, ok_m = self._mag_error(q, mag_uT)
-        self.flags["acc_skipped"] = not ok_a
-        self.flags["mag_skipped"] = not ok_m
+        self._flags = (0 if ok_a else 1) | (0 if ok_m else 2)
         # each correction over the time since that sensor's previous sample (its own rate)
         s.since_acc_s += dt_s
         s.since_mag_s += dt_s
@@ -203,33 +264,25 @@ class Mahony(Estimator):
                       np.stack([r.mag for r in recs]), p, q0=np.array(q0))
         return list(q)
 
-    def run(self, rec: Recording) -> Estimate:
-        """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
-        from gnomon.kernels.mahony import coefficients, mahony_batch
+    def prepare(self, rec: Recording) -> None:
+        """The initial attitude from ``rec``'s first ``init_samples`` (``run`` does this)."""
+        self.initialise(rec.accel, rec.mag)
 
+    def run(self, rec: Recording) -> Estimate:
+        """Whole recording through the compiled kernel (``update_many`` over its rows, each
+        sensor at its own rate: rows without a new sample are NaN); ``rec.frames['reference']``
+        must be ENU."""
         self.check_inputs(rec)
-        p = self.params
         if self.state is None:
-            self.initialise(rec.accel, rec.mag)
-        n = len(rec)
-        dt = np.empty(n)
+            self.prepare(rec)
+        dt = np.empty(len(rec))
         dt[0] = self.first_dt(rec)
         dt[1:] = np.diff(rec.t)
-        q_out = np.empty((n, 4))
-        b_out = np.empty((n, 3))
-        flags = np.empty(n, np.uint8)
-        # each sensor at its own rate: rows without a new sample are NaN (no correction)
-        mahony_batch(dt, np.ascontiguousarray(rec.gyro),
-                     np.ascontiguousarray(rec.on_time_base("accel")),
-                     np.ascontiguousarray(rec.on_time_base("mag")), self.state, coefficients(p),
-                     q_out, b_out, flags, not rec.single_rate)
+        est = self._batch(dt, rec.gyro, rec.on_time_base("accel"), rec.on_time_base("mag"), rec.t,
+                          not rec.single_rate)
         self.t_last = float(rec.t[-1])
-        return Estimate(
-            t=rec.t, q=q_out, estimator=self.name, params=p.as_dict(),
-            frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
-            signals={"bias_rad_s": b_out, "acc_skipped": (flags & 1) != 0,
-                     "mag_skipped": (flags & 2) != 0, "gap": (flags & 4) != 0},
-        )
+        est.frames = {"reference": rec.frames.get("reference", "ENU"), "body": "sensor"}
+        return est
 
 
 def run_batch(t, gyro, acc, mag, params: MahonyParams | None = None, q0=None,

@@ -61,8 +61,13 @@ Bad input: unusable vectors (zero, non-finite) are skipped and flagged, interval
 ``max_dt_s`` propagate only (``gap``), a non-finite gyro sample does not move the
 attitude (``coast``): the estimate never holds a NaN.
 
-``run`` calls the kernel ``gnomon.kernels.mekf.mekf_batch``; ``step`` is its readable
-twin in numpy (tested sample by sample); ``update`` streams one raw sample::
+The compiled paths take raw samples (the delayed pair from the filter's own tail of past
+samples, ``ring``): ``update`` streams one (the kernel ``gnomon.kernels.mekf.mekf_sample``),
+``update_many`` a buffer of them and ``run`` a recording (``prepare``: the initial
+attitude; then the rows as ``update_many`` takes them), both through ``mekf_stream``: any
+split of a recording into ``update``/``update_many`` calls gives ``run``'s result.
+``update_reference`` is the readable twin in numpy (``gnomon.estimators.mekf_reference``:
+``step``, the kernel's step phase by phase; tested sample by sample)::
 
     update(dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
            sun_ref_o=None, w_io_o_rad_s=None, st_q_ob=None, st_boresight_b=None)
@@ -70,12 +75,13 @@ twin in numpy (tested sample by sample); ``update`` streams one raw sample::
 
 ``dt_s`` s since the previous sample (the first call starts the filter: from the star
 tracker's attitude, else TRIAD of that sample's vectors; no step); ``gyro_rad_s`` (3,)
-``ω_ib_b`` rad/s; ``mag_b`` (3,) the measured field in b (nT when the bias is estimated,
+``ω_ib_b`` rad/s (None: none over this interval, coast; a non-finite component: refused,
+``InputError``); ``mag_b`` (3,) the measured field in b (nT when the bias is estimated,
 else any unit) and ``mag_ref_o`` (3,) the field model in o; ``sun_b``/``sun_ref_o`` (3,)
 the sun direction in b and its model in o (None: none, e.g. eclipse); ``w_io_o_rad_s``
 (3,) the orbital frame's rate (default ``[0, −n, 0]``); ``st_q_ob`` (4,) a star-tracker
 attitude already in the orbital frame
-(``q_oi ⊗ q̂_ib``) and ``st_boresight_b`` (3,) its boresight in b.
+(``q_oi ⊗ q̂_ib``) and ``st_boresight_b`` (3,) its boresight in b (needed with it).
 """
 
 from __future__ import annotations
@@ -87,15 +93,16 @@ import numpy as np
 
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate, Params, param
-from gnomon.estimators.ecf_spacecraft import VectorPairFilter, _correct, _unit
+from gnomon.estimators.ecf_spacecraft import VectorPairFilter, initial_q_ob
+from gnomon.estimators.mekf_reference import FLAG_NAMES, ReadableMEKF
+from gnomon.estimators.spacecraft_update import gyro_sample, vec
 from gnomon.recording import Recording
-from gnomon.rotation import dcm_from_quat, quat_conj, quat_from_rotvec, quat_mul, quat_rotate, skew
+from gnomon.rotation import quat_conj, quat_mul
 
 __all__ = ["MEKFParams", "MEKF", "MEKFDelayedParams", "MEKFDelayed", "MEKFSpacecraftParams",
-           "MEKFSpacecraft", "star_tracker_inputs"]
+           "MEKFSpacecraft", "star_tracker_inputs", "FLAG_NAMES"]
 
 ARCSEC = np.pi / 180.0 / 3600.0
-FLAG_NAMES = ("mag_unusable", "sun_unusable", "gap", "coast", "star_unused")
 
 
 @dataclass(frozen=True)
@@ -234,11 +241,12 @@ def star_tracker_inputs(rec: Recording, use: bool = True) -> dict:
             "st_bore": np.ascontiguousarray(bore.reshape(n, 3))}
 
 
-class MEKF(VectorPairFilter):
+class MEKF(ReadableMEKF, VectorPairFilter):
     """Multiplicative EKF on any of magnetometer, sun sensors, star tracker + gyro; q_ob.
 
     Streaming: ``update(dt_s, gyro_rad_s, *, mag_b, mag_ref_o, sun_b, sun_ref_o,
-    w_io_o_rad_s, st_q_ob, st_boresight_b)`` (module docstring); batch: ``run(rec)``."""
+    w_io_o_rad_s, st_q_ob, st_boresight_b)`` (module docstring), ``update_many`` (a
+    buffer); batch: ``run(rec)``; the readable twin: ``update_reference``."""
 
     name = "mekf"
     summary = ("Multiplicative EKF (Lefferts-Markley-Shuster): gyro + any of magnetometer, "
@@ -274,16 +282,14 @@ class MEKF(VectorPairFilter):
             used = [k for k in used if k != "star tracker"]
         return used
 
-    def reset(self, q0_ob=None) -> None:
-        self.history = []  # past estimates (the delayed pair's weight, streaming)
-        super().reset(q0_ob)
+    flag_bits = dict(zip(FLAG_NAMES, (1, 2, 4, 8, 16), strict=True))
 
     def _new_state(self) -> np.ndarray:
         from gnomon.kernels.mekf import STATE
+        from gnomon.kernels.spacecraft_cf import new_state
 
         p = self.params
-        state = np.zeros(1, STATE)
-        state["q"][0] = [1.0, 0.0, 0.0, 0.0]
+        state = new_state([1.0, 0.0, 0.0, 0.0], STATE)
         sd = [p.sigma0_att_rad] * 3 + [p.sigma0_bias_rad_s] * 3
         if p.estimate_mag_bias:
             sd += [p.sigma0_mag_bias_nT] * 3
@@ -317,245 +323,114 @@ class MEKF(VectorPairFilter):
         return np.zeros(3) if self.state is None else self.state["scale"][0].copy()
 
     # ---------------------------------------------------------------- streaming
+    def _sample_kernel(self):
+        """``update``'s kernel (``CompiledSampleUpdate``): ``mekf_sample``."""
+        from gnomon.kernels.entry import record
+        from gnomon.kernels.mekf import coefficients, mekf_sample
+
+        return mekf_sample, record(coefficients(self.params))
+
+    def _start_from_sample(self, mag_b, mag_o, sun_b, sun_o, st_q) -> None:
+        """A fresh filter's attitude from its first streamed sample: the star tracker's, else
+        TRIAD of the sample's sun and field (the identity without both)."""
+        p = self.params
+        if p.use_star_tracker and np.all(np.isfinite(st_q)):
+            self._start(st_q)
+            return
+        sun = p.use_sun and bool(np.all(np.isfinite(sun_b)) and np.all(np.isfinite(sun_o)))
+        self._start(initial_q_ob({"sec_o": sun_o[None], "mag_o": mag_o[None],
+                                  "sec_b": sun_b[None], "mag_b": mag_b[None],
+                                  "sec_valid": np.array([sun])}))
+
     def update(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,
                sun_ref_o=None, w_io_o_rad_s=None, st_q_ob=None,
                st_boresight_b=None) -> np.ndarray:
-        """One raw sample (streaming; arguments in the module docstring). Returns ``q_ob``
-        (4,); ``self.flags`` says what was used."""
-        fresh = self.state is None
-        x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, sun_b, sun_ref_o,
-                              w_io_o_rad_s)
-        valid = bool(x["sec_valid"]) and self.params.use_sun
-        if fresh:  # start: the tracker's attitude, else TRIAD of this sample; no step
-            one = {k: np.asarray(v)[None] for k, v in x.items()}
-            one["sec_valid"] = np.array([valid])
-            st_ok = (st_q_ob is not None and self.params.use_star_tracker
-                     and bool(np.all(np.isfinite(st_q_ob))))
-            self._start(one, np.asarray(st_q_ob, float) if st_ok else None)
+        """One raw sample through the compiled kernel (the arithmetic of ``run``; arguments
+        in the module docstring). Returns ``q_ob`` (4,); ``flags`` says what was used.
+        ``update_reference`` is the readable twin."""
+        if sun_b is None or sun_ref_o is None:
+            sun_b = sun_ref_o = None
+        g, m_b, m_o = gyro_sample(gyro_rad_s), vec(mag_b, "mag_b"), vec(mag_ref_o, "mag_ref_o")
+        s_b, s_o, st = vec(sun_b, "sun_b"), vec(sun_ref_o, "sun_ref_o"), vec(st_q_ob, "st_q_ob", 4)
+        if not self.params.use_star_tracker:  # as ``run``: a tracker it does not use
+            st = vec(None, "st_q_ob", 4)
+        if self.state is None:  # start: the tracker's attitude, else TRIAD of this sample
+            if not np.all(np.isfinite(g)):
+                raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                                 field="gyro_rad_s")
+            self._start_from_sample(m_b, m_o, s_b, s_o, st)
             dt_s = 0.0
-        return self.step(dt_s, x["gyro"], x["w_io_o"], x["mag_b"], x["mag_o"], x["sec_b"],
-                         x["sec_o"], valid, x["substituted"], st_q_ob, st_boresight_b)
+        w_io = self._w_io0 if w_io_o_rad_s is None else vec(w_io_o_rad_s, "w_io_o_rad_s")
+        return self._call(dt_s, g, w_io, m_b, m_o, s_b, s_o, st,
+                          vec(st_boresight_b, "st_boresight_b"), self.state, self.ring)
 
-    # ---------------------------------------------------------------- readable twin
-    def step(self, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid,
-             substituted=False, st_q_ob=None, st_boresight_b=None) -> np.ndarray:
-        """One sample given the kernel's inputs (readable twin of ``gnomon.kernels.mekf.step``
-        and the batch loop's hold). Returns ``q_ob`` (4,)."""
-        p = self.params
-        s = self.record()
-        self.flags = dict.fromkeys(FLAG_NAMES, False)
-        if 0.0 < dt_s < 1e300:
-            self._step(s, dt_s, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, bool(sec_valid),
-                       bool(substituted), st_q_ob, st_boresight_b)
-        s.gyro_b[:] = gyro
-        s.w_io_o[:] = w_io_o
-        q = self.q
-        self.history.append(q)
-        if len(self.history) > p.delay_samples:
-            self.history.pop(0)
-        return q.copy()
+    def update_many(self, dt_s, gyro_rad_s, *, mag_b=None, mag_ref_o=None, sun_b=None,
+                    sun_ref_o=None, w_io_o_rad_s=None, st_q_ob=None, st_boresight_b=None,
+                    t_s=None, keep_covariance: bool = True) -> Estimate:
+        """A buffer of N raw samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s, ``gyro_rad_s`` (N, 3), the keyword inputs (N, 3) (``st_q_ob`` (N,
+        4)), NaN rows where there is no sample (None: none at all; ``w_io_o_rad_s`` None:
+        ``[0, −n, 0]``). ``t_s`` (N,) the samples' times for the ``Estimate`` (default: the
+        running sum of ``dt_s``); ``keep_covariance`` as in ``run``."""
+        x = self._buffer(dt_s, gyro_rad_s, w_io_o_rad_s, mag_b=mag_b, mag_o=mag_ref_o,
+                         sun_b=sun_b, sun_o=sun_ref_o, st_q=(st_q_ob, 4), st_bore=st_boresight_b)
+        x["sun_valid"] = np.ones(len(x["dt"]), bool)
+        if not self.params.use_star_tracker:
+            x["st_q"] = np.full_like(x["st_q"], np.nan)
+        x["st_valid"] = np.isfinite(x["st_q"]).all(axis=1)
+        if self.state is None and len(x["dt"]):  # start from the first row (no step)
+            self._start_from_sample(x["mag_b"][0], x["mag_o"][0], x["sun_b"][0],
+                                    x["sun_o"][0], x["st_q"][0])
+            x["dt"] = x["dt"].copy()
+            x["dt"][0] = 0.0
+        return self._batch(x, np.cumsum(x["dt"]) if t_s is None else t_s, keep_covariance)
 
-    def _step(self, s, dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted,
-              st_q, st_bore):
-        p, n = self.params, self.n_states
-        P = s.P[:n, :n]
-        # -- gyro prediction: attitude, then covariance
-        g, w_io = ((s.gyro_b.copy(), s.w_io_o.copy()) if p.gyro_sample == "previous"
-                   else (np.asarray(gyro, float), np.asarray(w_io_o, float)))
-        if np.all(np.abs(g) < 1e6):
-            w = g - s.bias
-            if p.estimate_gyro_scale:
-                w = w / (1.0 + s.scale)
-            w_ob = w - quat_rotate(quat_conj(s.q), w_io)
-            s.q[:] = _correct(s.q, w_ob * dt)
-        else:
-            w = np.zeros(3)
-            self.flags["coast"] = True
-        Phi = self._transition(w, dt)
-        P[:] = Phi @ P @ Phi.T + self._q_noise() * dt
-        if dt > p.max_dt_s:
-            self.flags.update(gap=True, coast=True)
-            return
-        # -- magnetometer, then the sun or the delayed magnetometer pair in its place
-        dx = np.zeros(n)
-        ok_m = self._magnetometer(s, P, dx, mag_b, mag_o)
-        sigma = self._second_sigma(s.q, sec_valid, substituted)
-        ok_s = sigma is not None and self._vector(s, P, dx, sec_b, sec_o, sigma)
-        if not p.relinearise and (ok_m or ok_s):
-            self._apply(s, dx)
-        # -- star tracker
-        ok_t = False
-        if st_q is not None and np.all(np.isfinite(st_q)):
-            ok_t = self._star(s, P, dx, np.asarray(st_q, float), st_bore, w)
-            self.flags["star_unused"] = not ok_t
-        self.flags.update(mag_unusable=not ok_m, sun_unusable=not ok_s,
-                          coast=self.flags["coast"] or not (ok_m or ok_s or ok_t))
-
-    def _transition(self, w, dt):
-        p, n = self.params, self.n_states
-        Phi = np.eye(n)
-        if p.transition == "exponential" or np.dot(w, w) * dt * dt > 0.01:  # > 0.1 rad
-            Phi[:3, :3] = dcm_from_quat(quat_from_rotvec(-w * dt))
-        else:
-            Phi[:3, :3] -= skew(w) * dt
-        Phi[:3, 3:6] = -np.eye(3) * dt
-        if p.estimate_gyro_scale:
-            Phi[:3, n - 3:] = -np.diag(w) * dt
-        return Phi
-
-    def _q_noise(self):
-        p = self.params
-        q = [p.arw_rad_rt_s ** 2] * 3 + [p.bias_rw_rad_s_rt_s ** 2] * 3
-        if p.estimate_mag_bias:
-            q += [p.mag_bias_rw_nT_rt_s ** 2] * 3
-        if p.estimate_gyro_scale:
-            q += [p.gyro_scale_rw_rt_s ** 2] * 3
-        return np.diag(q)
-
-    def _second_sigma(self, q, sec_valid, substituted):
-        """Noise (rad) of the second pair, None when it is not used (readable twin of
-        ``second_sigma``)."""
-        p = self.params
-        if not sec_valid:
-            return None
-        if not substituted:
-            return p.sigma_sun_rad
-        if len(self.history) < p.delay_samples:
-            return None
-        old = self.history[-p.delay_samples]
-        swing = 2.0 * np.arccos(min(1.0, abs(float(old @ q))))
-        return np.sqrt(p.sigma_mag_rad ** 2 + (p.swing_gain * swing) ** 2)
-
-    @staticmethod
-    def _kalman(P, dx, H, y, R):
-        """``dx += K (y − H dx)``, ``P ← P − K H P`` in place; the innovation's χ², None if
-        ``S`` is singular."""
-        S = H @ P @ H.T + R
-        if not np.linalg.det(S) > 0:
-            return None
-        r = y - H @ dx
-        K = P @ H.T @ np.linalg.inv(S)
-        dx += K @ r
-        P_new = P - K @ (H @ P)
-        P[:] = 0.5 * (P_new + P_new.T)
-        return float(r @ np.linalg.solve(S, r))
-
-    def _apply(self, s, dx):
-        """The correction: ``q ⊗ exp(θ)``, the biases (and scales) added; ``dx`` cleared."""
-        p, n = self.params, self.n_states
-        if p.correction == "exponential":
-            s.q[:] = _correct(s.q, dx[:3])
-        else:
-            q = quat_mul(s.q, np.concatenate([[1.0], 0.5 * dx[:3]]))
-            s.q[:] = q / np.linalg.norm(q)
-        s.bias[:] = s.bias + dx[3:6]
-        if p.estimate_mag_bias:
-            s.mag_bias[:] = s.mag_bias + dx[6:9]
-        if p.estimate_gyro_scale:
-            s.scale[:] = s.scale + dx[n - 3:]
-        dx[:] = 0.0
-
-    def _magnetometer(self, s, P, dx, mag_b, mag_o) -> bool:
-        """The magnetometer (readable twin of ``magnetometer``): a zero or non-finite field is
-        a dropout; its bias removed when estimated, then the magnitude row."""
-        p = self.params
-        if not _unit(mag_b)[1]:
-            return False
-        v = np.asarray(mag_b, float) - s.mag_bias
-        sigma = p.sigma_mag_rad
-        if p.mag_noise_nT > 0 and _unit(v)[1]:
-            sigma = np.sqrt(sigma ** 2 + (p.mag_noise_nT / np.linalg.norm(v)) ** 2)
-        if not self._vector(s, P, dx, v, mag_o, sigma, mag_bias=p.estimate_mag_bias):
-            return False
-        if p.estimate_mag_bias and p.sigma_mag_norm_nT > 0:
-            u = v / np.linalg.norm(v)
-            H = np.zeros((1, self.n_states))
-            H[0, 6:9] = u
-            y = np.array([np.linalg.norm(v) - np.linalg.norm(mag_o)])
-            if self._kalman(P, dx, H, y, np.array([[p.sigma_mag_norm_nT ** 2]])) is not None \
-                    and p.relinearise:
-                self._apply(s, dx)
-        return True
-
-    def _vector(self, s, P, dx, vb, vo, sigma, mag_bias=False) -> bool:
-        """One unit-vector measurement (readable twin of ``vector_update``); False if either
-        vector is unusable."""
-        ub, ok_b = _unit(vb)
-        uo, ok_o = _unit(vo)
-        if not (ok_b and ok_o):
-            return False
-        m = quat_rotate(quat_conj(s.q), uo)
-        H = np.zeros((3, self.n_states))
-        H[:, :3] = skew(m)
-        if mag_bias:
-            H[:, 6:9] = (np.eye(3) - np.outer(ub, ub)) / np.linalg.norm(vb)
-        if self._kalman(P, dx, H, ub - m, sigma ** 2 * np.eye(3)) is None:
-            return False
-        if self.params.relinearise:
-            self._apply(s, dx)
-        return True
-
-    def _star(self, s, P, dx, st_q, bore, w_ib) -> bool:
-        """The star tracker (readable twin of ``star_tracker``): ``st_q`` carried over the
-        latency with the inertial rate ``w_ib``; False if gated out."""
-        p = self.params
-        b, ok = _unit(bore)
-        if not ok:
-            return False
-        q_m = quat_mul(st_q, quat_from_rotvec(w_ib * p.st_latency_s))
-        d = quat_mul(quat_conj(s.q), q_m)
-        d = -d if d[0] < 0 else d
-        v = np.linalg.norm(d[1:])
-        y = d[1:] * (2.0 * np.arctan2(v, d[0]) / v if v > 1e-12 else 2.0)
-        H = np.zeros((3, self.n_states))
-        H[:, :3] = np.eye(3)
-        R = (p.st_sigma_cross_rad ** 2 * (np.eye(3) - np.outer(b, b))
-             + p.st_sigma_about_rad ** 2 * np.outer(b, b))
-        saved = P.copy()
-        lat = p.arw_rad_rt_s ** 2 * p.st_latency_s * np.diag([1.0] * 3 + [0.0] * (len(P) - 3))
-        P -= lat  # the gain of P(t − L): the gyro noise since is in both
-        chi2 = self._kalman(P, dx, H, y, R)
-        P += lat
-        if chi2 is None or (p.st_gate_chi2 > 0 and chi2 > p.st_gate_chi2):
-            P[:] = saved
-            dx[:] = 0.0
-            return False
-        self._apply(s, dx)
-        return True
-
-    # ---------------------------------------------------------------- batch
-    def run(self, rec: Recording, q0=None, keep_covariance: bool = True) -> Estimate:
-        """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: the first star-tracker
-        attitude, else TRIAD of the first sample with the sun and the field, else the
-        identity). A recording without a magnetometer runs on its other sensors (every
-        sample flagged ``mag_unusable``). ``keep_covariance`` False: no
-        ``att_std_rad``/``p_diag`` signals (saves ``8 n²`` bytes per sample while running)."""
-        from gnomon.kernels.mekf import coefficients, mekf_batch
-
-        self.check_inputs(rec)
-        p = self.params
+    # ---------------------------------------------------------------- a recording's rows
+    def _rows(self, rec: Recording, first_dt: float = 0.0) -> dict:
+        """The kernel inputs of ``rec``'s rows (``VectorPairFilter._rows``, the field in nT,
+        zero without a magnetometer: every sample a dropout) and the star tracker's
+        (``st_q``, ``st_valid``, ``st_bore``: ``star_tracker_inputs``)."""
         if "magnetometer" not in self._sensors(rec):  # no field: every sample a dropout
             zero = np.zeros((len(rec), 3))
             rec = dataclasses.replace(rec, mag=zero, mag_unit="nT",
                                       extra={**rec.extra, "b_o_nT": zero})
         elif rec.mag_unit != "nT":  # the bias, the magnitude row and mag_noise_nT are in nT
             rec = dataclasses.replace(rec, mag=rec.mag_tesla * 1e9, mag_unit="nT")
-        pairs = self.pairs(rec)
-        if not p.use_sun:
-            pairs["sec_valid"] = np.zeros(len(rec), bool)
-        st = star_tracker_inputs(rec, p.use_star_tracker)
-        if q0 is None and self.state is None and st["st_valid"].any():
-            q0 = st["st_q"][int(np.argmax(st["st_valid"]))]  # the first tracker attitude
-        self._start(pairs, q0)
-        n, k = len(rec), self.n_states
+        x = super()._rows(rec, first_dt)
+        st = star_tracker_inputs(rec, self.params.use_star_tracker)
+        x.update(st_q=st["st_q"], st_valid=st["st_valid"], st_bore=st["st_bore"])
+        return x
+
+    def _keywords(self, x: dict) -> dict:
+        kw = super()._keywords(x)
+        if self.params.use_star_tracker and x["st_valid"].any():
+            kw.update(st_q_ob=x["st_q"], st_boresight_b=x["st_bore"])
+        return kw
+
+    def _prepare(self, x: dict, q0) -> None:
+        """The first tracker attitude for a fresh filter (if there is one), else TRIAD of the
+        first sample with the sun (when it is used) and the field."""
+        if q0 is None and self.state is None and x["st_valid"].any():
+            q0 = x["st_q"][int(np.argmax(x["st_valid"]))]
+        if not self.params.use_sun:
+            x = {**x, "sun_valid": np.zeros(len(x["dt"]), bool)}
+        super()._prepare(x, q0)
+
+    # ---------------------------------------------------------------- batch
+    def _batch(self, x: dict, t, keep_covariance: bool = True) -> Estimate:
+        """The rows ``x`` (``_rows``) through ``mekf_stream``, continuing the state."""
+        from gnomon.kernels.mekf import coefficients, mekf_stream
+
+        p = self.params
+        n, k = len(x["dt"]), self.n_states
         q_out, b_out, flags = np.empty((n, 4)), np.empty((n, 3)), np.zeros((n, 5), np.int8)
         m_out, s_out = np.empty((n, 3)), np.empty((n, 3))
         p_out = np.empty((n, k, k)) if keep_covariance else np.empty((n, 0, 0))
-        innov = np.empty((n, 2))
-        mekf_batch(coefficients(p), self.state, pairs["dt"], pairs["gyro"], pairs["w_io_o"],
-                   pairs["mag_b"], pairs["mag_o"], pairs["sec_b"], pairs["sec_o"],
-                   pairs["sec_valid"], pairs["substituted"], st["st_q"], st["st_valid"],
-                   st["st_bore"], q_out, b_out, m_out, s_out, p_out, flags, innov)
+        innov, substituted = np.empty((n, 2)), np.zeros(n, bool)
+        mekf_stream(coefficients(p), self.state, self.ring, x["dt"], x["gyro"], x["w_io_o"],
+                    x["mag_b"], x["mag_o"], x["sun_b"], x["sun_o"], x["sun_valid"], substituted,
+                    False, x["st_q"], x["st_valid"], x["st_bore"], q_out, b_out, m_out, s_out,
+                    p_out, flags, innov)
         signals = {"innovation_mag": innov[:, 0], "innovation_sun": innov[:, 1]}
         if keep_covariance:
             diag = np.diagonal(p_out, axis1=1, axis2=2)
@@ -566,8 +441,20 @@ class MEKF(VectorPairFilter):
         if p.estimate_gyro_scale:
             signals["gyro_scale"] = s_out
         if p.sun_substitute != "none":
-            signals["sun_substituted"] = pairs["substituted"]
-        return self._finish(rec, pairs, q_out, b_out, flags, FLAG_NAMES, **signals)
+            signals["sun_substituted"] = substituted
+        return self._estimate(t, q_out, b_out, flags, FLAG_NAMES, **signals)
+
+    def run(self, rec: Recording, q0=None, keep_covariance: bool = True) -> Estimate:
+        """Whole recording (compiled: ``prepare``, then the rows as ``update_many`` takes
+        them). ``q0``: initial ``q_ob`` (default: the first star-tracker attitude, else
+        TRIAD of the first sample with the sun and the field, else the identity). A
+        recording without a magnetometer runs on its other sensors (every sample flagged
+        ``mag_unusable``). ``keep_covariance`` False: no ``att_std_rad``/``p_diag`` signals
+        (saves ``8 n²`` bytes per sample while running)."""
+        self.check_inputs(rec)
+        x = self._rows(rec, self.first_dt(rec))
+        self._prepare(x, q0)
+        return self._finish(rec, self._batch(x, rec.t, keep_covariance))
 
 
 class MEKFDelayed(MEKF):

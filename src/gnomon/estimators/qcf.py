@@ -28,14 +28,18 @@ coasts on the gyro. Sun loss is handled by the same substitutes as the
 explicit filter (``sun_substitute``: the paper's delayed magnetometer pair,
 the gyro-propagated one, or none).
 
-``run`` measures ``q_mes`` (``measure``) and calls the kernel
-``gnomon.kernels.spacecraft_cf.qcf_batch`` (coefficients ``qcf_coefficients(params)``,
-state record ``STATE``); ``step`` is its readable twin phase by phase (gyro prediction,
-measured quaternion, magnetometer fallback, PI correction). Streaming:
-``update(dt_s, gyro_rad_s=None, *, q_mes_ob=None, mag_b=None, mag_ref_o=None,
-w_io_o_rad_s=None)`` with ``q_mes_ob`` (4,) a measured ``q_ob`` (any solver; None: no
-measurement at this sample) and the other arguments as in
-``gnomon.estimators.ecf_spacecraft`` (``None`` = no new sample).
+``run`` measures ``q_mes`` (``measure``: the sun's substitutes from the filter's tail,
+``gnomon.kernels.spacecraft_cf.pairs_stream``) and runs the kernel
+``gnomon.kernels.spacecraft_cf.qcf_stream`` (coefficients ``qcf_coefficients(params)``,
+state record ``STATE``) as ``update_many`` does; ``update`` runs one sample of it
+(``qcf_sample``): any split of a recording into ``update``/``update_many`` calls gives
+``run``'s result. ``update_reference`` is the readable twin of ``update`` (``step``, the
+twin of ``qcf_step`` phase by phase: gyro prediction, measured quaternion, magnetometer
+fallback, PI correction). Streaming: ``update(dt_s, gyro_rad_s=None, *, q_mes_ob=None,
+mag_b=None, mag_ref_o=None, w_io_o_rad_s=None)`` with ``q_mes_ob`` (4,) a measured
+``q_ob`` (any solver; None: no measurement at this sample) and the other arguments as in
+``gnomon.estimators.ecf_spacecraft`` (``None`` = no new sample); the magnetic pair joins
+the tail a later ``run`` makes its substitutes from.
 """
 
 from __future__ import annotations
@@ -54,6 +58,7 @@ from gnomon.estimators.ecf_spacecraft import (
     _vector_error,
     initial_q_ob,
 )
+from gnomon.estimators.spacecraft_update import gyro_sample, vec
 from gnomon.estimators.wahba import DEFAULT_MIN_QUALITY, SOLVERS, solve
 from gnomon.recording import Recording
 from gnomon.rotation import quat_conj, quat_mul
@@ -165,15 +170,66 @@ class QuaternionCF(VectorPairFilter):
     paper = "seed 000"
     Params = QuaternionCFParams
 
+    flag_bits = {"mag_unusable": 1, "mes_unusable": 2, "gap": 4, "coast": 8}
+
+    def _coefficients(self):
+        from gnomon.kernels.spacecraft_cf import qcf_coefficients
+
+        return qcf_coefficients(self.params)
+
+    def _sample_kernel(self):
+        """``update``'s kernel (``CompiledSampleUpdate``): ``qcf_sample``."""
+        from gnomon.kernels.entry import record
+        from gnomon.kernels.spacecraft_cf import qcf_sample
+
+        return qcf_sample, record(self._coefficients())
+
     def update(self, dt_s, gyro_rad_s=None, *, q_mes_ob=None, mag_b=None, mag_ref_o=None,
                w_io_o_rad_s=None) -> np.ndarray:
-        """One raw sample (streaming). Returns ``q_ob`` (4,); ``self.flags`` says what was
-        used. The magnetic pair and the gyro also join the tail a later ``run`` continues."""
-        x = self.stream_pairs(dt_s, gyro_rad_s, mag_b, mag_ref_o, None, None, w_io_o_rad_s,
-                              sun_substitute="none")  # q_mes comes from the caller
-        q_mes = np.full(4, np.nan) if q_mes_ob is None else q_mes_ob
-        return self.step(dt_s, x["gyro"], x["w_io_o"], q_mes, q_mes_ob is not None,
-                         x["mag_b"], x["mag_o"])
+        """One raw sample through the compiled kernel (the arithmetic of ``run``). Returns
+        ``q_ob`` (4,); ``flags`` says what was used. The magnetic pair and the gyro also join
+        the tail a later ``run`` continues. ``update_reference`` is the readable twin."""
+        if self.state is None:
+            self.record()
+        w_io = self._w_io0 if w_io_o_rad_s is None else vec(w_io_o_rad_s, "w_io_o_rad_s")
+        return self._call(dt_s, gyro_sample(gyro_rad_s), w_io, vec(q_mes_ob, "q_mes_ob", 4),
+                          vec(mag_b, "mag_b"), vec(mag_ref_o, "mag_ref_o"), self.state,
+                          self.ring)
+
+    def update_many(self, dt_s, gyro_rad_s, *, q_mes_ob=None, mag_b=None, mag_ref_o=None,
+                    w_io_o_rad_s=None, t_s=None) -> Estimate:
+        """A buffer of N raw samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s, ``gyro_rad_s`` (N, 3), ``q_mes_ob`` (N, 4) (NaN rows: no
+        measurement), ``mag_b``, ``mag_ref_o``, ``w_io_o_rad_s`` (N, 3) (None: none at
+        all; the orbital rate ``[0, −n, 0]``). ``t_s`` (N,) the samples' times (default:
+        the running sum of ``dt_s``)."""
+        x = self._buffer(dt_s, gyro_rad_s, w_io_o_rad_s, q_mes=(q_mes_ob, 4), mag_b=mag_b,
+                         mag_o=mag_ref_o)
+        ok = np.isfinite(x["q_mes"]).all(axis=1)
+        return self._batch(x, x["q_mes"], ok, np.cumsum(x["dt"]) if t_s is None else t_s)
+
+    def _batch(self, x: dict, q_mes, ok, t) -> Estimate:
+        """The rows ``x`` with the measurements ``q_mes`` (usable where ``ok``) through
+        ``qcf_stream``, continuing the state."""
+        from gnomon.kernels.spacecraft_cf import qcf_stream
+
+        q_out, b_out, flags = self._outputs(len(x["dt"]))
+        qcf_stream(self._coefficients(), self.state, self.ring, x["dt"], x["gyro"], x["w_io_o"],
+                   np.ascontiguousarray(q_mes, float), np.asarray(ok, np.bool_), x["mag_b"],
+                   x["mag_o"], q_out, b_out, flags)
+        return self._estimate(t, q_out, b_out, flags,
+                              ("mag_unusable", "mes_unusable", "gap", "coast"))
+
+    def update_reference(self, dt_s, gyro_rad_s=None, *, q_mes_ob=None, mag_b=None,
+                         mag_ref_o=None, w_io_o_rad_s=None) -> np.ndarray:
+        """The readable twin of ``update`` (numpy, one sample: the magnetic pair joins the
+        tail, then ``step``). Same arguments and result."""
+        g, w_io, m_b, m_o, s_b, s_o = self._reference_row(gyro_rad_s, w_io_o_rad_s, mag_b,
+                                                          mag_ref_o, None, None)
+        s = self.record()
+        self._second_pair(s, dt_s, g, w_io, m_b, m_o, s_b, s_o)  # joins the tail (no sun)
+        q_mes = np.full(4, np.nan) if q_mes_ob is None else vec(q_mes_ob, "q_mes_ob", 4)
+        return self.step(dt_s, g, w_io, q_mes, q_mes_ob is not None, m_b, m_o)
 
     def step(self, dt_s, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o) -> np.ndarray:
         """One sample given the kernel's inputs: the readable twin of
@@ -203,7 +259,8 @@ class QuaternionCF(VectorPairFilter):
         return self.q
 
     def measure(self, rec: Recording, pairs: dict | None = None, q0=None):
-        """(pairs, q_mes, ok) for ``rec`` with this filter's solver and substitution."""
+        """(pairs, q_mes, ok) for ``rec`` with this filter's solver and substitution (the
+        substitutes from its tail: ``pairs``; the filter unchanged)."""
         p = self.params
         if pairs is None:
             pairs = self.pairs(rec)
@@ -213,19 +270,24 @@ class QuaternionCF(VectorPairFilter):
                                          p.k_sun, p.min_quality)
         return pairs, q_mes, ok
 
+    def buffer_inputs(self, rec: Recording):
+        """``rec`` as ``update_many`` takes it: ``((dt, gyro), {q_mes_ob, mag_b, mag_ref_o,
+        w_io_o_rad_s})``, ``q_mes_ob`` measured as ``run`` measures it (NaN where not
+        usable)."""
+        x = self._rows(rec)
+        _, q_mes, ok = self.measure(rec, self._pairs(x))
+        q_mes = np.where(np.asarray(ok, bool)[:, None], q_mes, np.nan)
+        return (x["dt"], x["gyro"]), {"q_mes_ob": q_mes, "mag_b": x["mag_b"],
+                                      "mag_ref_o": x["mag_o"], "w_io_o_rad_s": x["w_io_o"]}
+
     def run(self, rec: Recording, q0=None, measured=None) -> Estimate:
         """Whole recording (compiled). ``q0``: initial ``q_ob`` (default: TRIAD of the first
         sample with both pairs); ``measured``: a precomputed ``(pairs, q_mes, ok)``."""
-        from gnomon.kernels.spacecraft_cf import qcf_batch, qcf_coefficients
-
         self.check_inputs(rec)
-        pairs, q_mes, ok = measured if measured is not None else self.measure(rec)
-        self._start(pairs, q0)
-        q_out, b_out, flags = self._outputs(len(rec))
-        qcf_batch(qcf_coefficients(self.params), self.state, pairs["dt"], pairs["gyro"],
-                  pairs["w_io_o"], np.ascontiguousarray(q_mes), np.asarray(ok, np.bool_),
-                  pairs["mag_b"], pairs["mag_o"], q_out, b_out, flags)
-        return self._finish(rec, pairs, q_out, b_out, flags,
-                            ("mag_unusable", "mes_unusable", "gap", "coast"),
-                            q_mes=q_mes, q_mes_ok=np.asarray(ok, bool),
-                            sun_substituted=pairs["substituted"])
+        x = self._rows(rec, self.first_dt(rec))
+        pairs, q_mes, ok = measured if measured is not None else self.measure(rec, self._pairs(x))
+        self._prepare(x, q0)
+        est = self._batch(x, q_mes, ok, rec.t)
+        est.signals.update(q_mes=q_mes, q_mes_ok=np.asarray(ok, bool),
+                           sun_substituted=pairs["substituted"])
+        return self._finish(rec, est)

@@ -84,11 +84,16 @@ n = ENU. The estimate is
 Filter coefficients use nominal sample times ``ts`` = (gyro, accelerometer,
 magnetometer): for ``run`` the median of the first 100 regular intervals of each
 sensor of the first recording run (every sensor at its own rate: a row without a new
-sample of a sensor skips its phase); for ``update`` the first positive ``dt`` or
+sample of a sensor skips its phase; ``prepare(rec)`` sets the same times); for
+``update`` and ``update_many`` the first sample's ``dt`` (> 0) or
 ``start(ts_s, accel_ts_s, mag_ts_s)``. The gyro is integrated over the actual intervals.
 Intervals longer than ``max_dt_s`` are gaps (gyro only). Streaming
-``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)``: ``None`` (or a zero
-vector, as in a recording) is no new sample of that sensor and skips its phase.
+``update(dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None)`` (one sample) and
+``update_many`` (a buffer of them), both compiled, on the filter's own state: ``None``
+(or a zero vector, as in a recording, or one with a non-finite component) is no new
+sample of that sensor and skips its phase; a non-finite gyro sample raises and changes
+nothing. ``prepare(rec)`` sets the sample times ``run(rec)`` would, so that the rows of
+``rec`` fed through ``update``/``update_many`` in any split give ``run``'s result.
 
 Signals of ``run``: ``bias_rad_s`` (N, 3), ``bias_at_limit`` (bool: a component of the
 bias estimate is at ``bias_clip_deg_s``; the true bias may be larger, ``gnomon estimate``
@@ -104,10 +109,11 @@ Design: the coefficients (``Coefficients``, a named tuple from
 nested records) are defined in the kernel module ``gnomon.kernels.robust_ahrs``, which
 knows nothing of this one. The filter holds the state as ``self.state``, an array of one
 record (``record`` is its attribute view; ``get_state``/``set_state`` save and restore
-it with ``ts`` and ``t_last``). The readable per-sample ``update`` is the reference: it
-runs the kernel's phases (rest detection, strapdown, inclination, bias Kalman filter,
-magnetometer: hard iron, disturbance, heading) written with numpy, below, on the same
-record; ``run`` uses the compiled kernel (tested sample by sample against it).
+it with ``ts`` and ``t_last``). The readable per-sample ``update_reference`` is the
+reference: it runs the kernel's phases (rest detection, strapdown, inclination, bias
+Kalman filter, magnetometer: hard iron, disturbance, heading) written with numpy, below,
+on the same record; ``update``, ``update_many`` and ``run`` use the compiled kernel
+(tested sample by sample against it).
 """
 
 from __future__ import annotations
@@ -118,7 +124,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from gnomon.errors import InputError
-from gnomon.estimators.base import Estimate, Estimator, Params, param
+from gnomon.estimators.base import (
+    CompiledIMUUpdate,
+    Estimate,
+    Estimator,
+    Params,
+    imu_buffer,
+    param,
+)
+from gnomon.kernels.entry import BAD_GYRO, record
 from gnomon.kernels.robust_ahrs import (
     ACC_SKIPPED,
     BIAS_AT_LIMIT,
@@ -480,21 +494,26 @@ def _heading_gain(s, c, soft, p_bv):
 
 
 def _sample(v, name):
-    """A sensor sample as a float array (3,), or None for no new sample (None or zero)."""
+    """A sensor sample as a float array (3,), or None for no new sample (None, zero, or a
+    non-finite component)."""
     if v is None:
         return None
     a = np.asarray(v, dtype=float)
     if a.shape != (3,):
         raise InputError(f"expected a 3-vector, got shape {a.shape}", field=name)
-    return a if a @ a > 0.0 else None
+    return a if np.all(np.isfinite(a)) and a @ a > 0.0 else None
 
 
 def _normalise(q):
     return q / np.linalg.norm(q)
 
 
-class RobustAHRS(Estimator):
-    """Decoupled 9-axis AHRS with rest/motion bias estimation and magnetic rejection (ENU)."""
+class RobustAHRS(CompiledIMUUpdate, Estimator):
+    """Decoupled 9-axis AHRS with rest/motion bias estimation and magnetic rejection (ENU).
+
+    Streaming: ``update`` (one sample, the compiled ``robust_ahrs_sample``, see
+    ``CompiledIMUUpdate``) and ``update_many`` (a buffer, the compiled batch loop) on the
+    filter's own state; ``update_reference`` is the readable twin. Batch: ``run``."""
 
     name = "robust-ahrs"
     summary = ("Decoupled AHRS (VQF structure): inertial-frame accelerometer filter, rest and "
@@ -510,12 +529,14 @@ class RobustAHRS(Estimator):
     #: Signals ``*_at_limit`` -> (parameter of the bound, its unit, what reached it): read
     #: by ``gnomon estimate`` for its warnings.
     limits = {"bias_at_limit": ("bias_clip_deg_s", "deg/s", "gyro bias estimate")}
+    flag_bits = {"acc_skipped": ACC_SKIPPED, "mag_skipped": MAG_SKIPPED, "gap": GAP,
+                 "bias_at_limit": BIAS_AT_LIMIT}
 
     def reset(self) -> None:
         self.state = new_state(self.params)  # one STATE record (gnomon.kernels.robust_ahrs)
         self.ts = None  # s: nominal sample times (gyro, accelerometer, magnetometer)
         self.t_last = None  # s, time of the last sample processed by ``run``
-        self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": False}
+        self._reset_sample_path()
 
     def start(self, ts_s: float, accel_ts_s: float | None = None,
               mag_ts_s: float | None = None) -> None:
@@ -529,6 +550,12 @@ class RobustAHRS(Estimator):
                 raise InputError(f"sample time must be > 0, got {v!r}", field=name)
             times.append(float(v))
         self.ts = tuple(times)
+        self._reset_sample_path()  # ``update``'s coefficients follow the new times
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from ``get_state`` (its nominal sample times ``ts`` too)."""
+        super().set_state(state)
+        self._reset_sample_path()
 
     def coefficients(self) -> Coefficients:
         """The kernel's coefficients for ``params`` and the nominal sample times ``ts``."""
@@ -555,67 +582,101 @@ class RobustAHRS(Estimator):
         """Current gyro bias estimate (3,), rad/s, body frame."""
         return self.state["bias"][0].copy()
 
-    def update(self, dt_s: float, gyro_rad_s, accel_m_s2=None, mag_uT=None) -> np.ndarray:
-        """One sample: ``dt_s`` (s) since the last one, gyro (rad/s), accelerometer (m/s²)
-        and magnetometer (µT, or any one unit), all (3,) in the body frame. ``None`` (or a
-        zero vector) is no new sample of that sensor: its phase is skipped. Returns
-        ``q_nb`` (ENU from body); ``flags`` says which phases were skipped."""
+    def _sample_kernel(self, dt_s, accel, mag):
+        """``update``'s kernel (``CompiledIMUUpdate``): ``robust_ahrs_sample``; the first
+        sample without ``start`` fixes the nominal sample time from its ``dt_s``."""
+        from gnomon.kernels.robust_ahrs import robust_ahrs_sample
+
         if self.ts is None:
-            if not dt_s > 0:
-                raise InputError("call start(ts_s) first or pass dt_s > 0", field="dt_s")
-            self.start(dt_s)
+            self._start_from(dt_s)
+        return robust_ahrs_sample, record(self.coefficients())
+
+    def _start_from(self, dt_s) -> None:
+        """Streaming without ``start``: the first interval is the nominal sample time."""
+        if not dt_s > 0:
+            raise InputError("call start(ts_s) first or pass dt_s > 0", field="dt_s")
+        self.start(float(dt_s))
+
+    def update_reference(self, dt_s: float, gyro_rad_s, accel_m_s2=None,
+                         mag_uT=None) -> np.ndarray:
+        """The readable twin of ``update`` (numpy, one sample; the tests hold the compiled
+        paths to it sample by sample): ``dt_s`` (s) since the last one, gyro (rad/s),
+        accelerometer (m/s²) and magnetometer (µT, or any one unit), all (3,) in the body
+        frame. ``None`` (or a zero vector, or one with a non-finite component) is no new
+        sample of that sensor: its phase is skipped. Returns ``q_nb`` (ENU from body);
+        ``flags`` says which phases were skipped. A non-finite gyro sample raises
+        ``InputError`` and changes nothing."""
         if gyro_rad_s is None:
             raise InputError("robust-ahrs needs a gyro sample at every update",
                              field="gyro_rad_s")
         g = _sample(gyro_rad_s, "gyro_rad_s")
-        g = np.zeros(3) if g is None else g  # a zero rate is a sample
+        if g is None:
+            g = np.asarray(gyro_rad_s, dtype=float)
+            if not np.all(np.isfinite(g)):
+                self._flags = BAD_GYRO
+                raise InputError(f"non-finite value {g.tolist()} (the sample was not used)",
+                                 field="gyro_rad_s")
+            g = np.zeros(3)  # a zero rate is a sample
+        if self.ts is None:
+            self._start_from(dt_s)
         a, m = _sample(accel_m_s2, "accel_m_s2"), _sample(mag_uT, "mag_uT")
         c, s = self.coefficients(), self.record
-        self.flags = {"acc_skipped": a is None, "mag_skipped": m is None, "gap": False}
+        flags = (ACC_SKIPPED if a is None else 0) | (MAG_SKIPPED if m is None else 0)
         if c.rest_bias or c.mag_rejection:
             _rest_gyro(s, c, g)
         _strapdown(s, dt_s, g)
         if dt_s > c.max_dt_s:
-            self.flags = {"acc_skipped": False, "mag_skipped": False, "gap": True}
-            return self.q
-        if a is not None:
-            if c.rest_bias:
-                _rest_acc(s, c, a)
-            _bias_kf(s, c, _inclination(s, c, a))
-        if m is not None:
-            _magnetometer(s, c, m)
+            flags = GAP
+        else:
+            if a is not None:
+                if c.rest_bias:
+                    _rest_acc(s, c, a)
+                _bias_kf(s, c, _inclination(s, c, a))
+            if m is not None:
+                _magnetometer(s, c, m)
+        self._flags = flags | (BIAS_AT_LIMIT if s.bias_at_limit else 0)
         return self.q
 
-    def run(self, rec: Recording) -> Estimate:
-        """Whole recording through the compiled kernel; ``rec.frames['reference']`` must be ENU."""
+    def prepare(self, rec: Recording) -> None:
+        """The nominal sample times from ``rec`` as ``run`` sets them: the median of the
+        first (up to) 100 regular intervals of each sensor (so that a run split after 100
+        samples resumes exactly)."""
+        self.start(*(rec.nominal_dt_s(name, self.params.max_dt_s, default=0.01)
+                     for name in ("gyro", "accel", "mag")))
+
+    def update_many(self, dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None, *,
+                    t_s=None) -> Estimate:
+        """A buffer of N samples through the compiled kernel, as N calls of ``update``:
+        ``dt_s`` (N,) s (each since the previous sample), ``gyro_rad_s`` (N, 3),
+        ``accel_m_s2`` (N, 3) m/s², ``mag_uT`` (N, 3) body frame, NaN (or zero) rows where
+        that sensor has no new sample (None: none at all). ``t_s`` (N,) the samples' times
+        for the returned ``Estimate`` (default: the running sum of ``dt_s``); its signals
+        are those of ``run``."""
+        dt, gyro, acc, mag = imu_buffer(dt_s, gyro_rad_s, accel_m_s2, mag_uT)
+        if self.ts is None and len(dt):
+            self._start_from(dt[0])
+        return self._batch(dt, gyro, acc, mag, np.cumsum(dt) if t_s is None else t_s)
+
+    def _batch(self, dt, gyro, acc, mag, t_s) -> Estimate:
+        """``update_many`` on checked inputs (``run``'s come from a ``Recording``): the
+        compiled ``robust_ahrs_batch`` from ``state``; each sensor at its own rate (NaN rows:
+        no new sample, the phase skipped)."""
         from gnomon.kernels.robust_ahrs import robust_ahrs_batch
 
-        self.check_inputs(rec)
-        n = len(rec)
-        dt = np.empty(n)
-        dt[0] = self.first_dt(rec)
-        dt[1:] = np.diff(rec.t)
-        if self.ts is None:
-            # nominal sample times: median of the first (up to) 100 regular intervals of
-            # each sensor, so that a run split after 100 samples resumes exactly
-            self.start(*(rec.nominal_dt_s(name, self.params.max_dt_s, default=0.01)
-                         for name in ("gyro", "accel", "mag")))
+        n = len(dt)
         out = {"q": np.empty((n, 4)), "bias": np.empty((n, 3)), "rest": np.empty(n, np.bool_),
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
                "hi": np.empty((n, 3)), "flags": np.empty(n, np.uint8)}
         # strided views are fine for the kernel (no copy)
-        # each sensor at its own rate: NaN rows (no new sample) skip their phase
-        robust_ahrs_batch(dt, np.asarray(rec.gyro, dtype=float),
-                          np.asarray(rec.on_time_base("accel"), dtype=float),
-                          np.asarray(rec.on_time_base("mag"), dtype=float), self.state,
-                          self.coefficients(),
+        robust_ahrs_batch(dt, gyro, acc, mag, self.state, self.coefficients(),
                           out["q"], out["bias"], out["rest"], out["dist"], out["acc_rate"],
                           out["k_mag"], out["hi"], out["flags"])
-        self.t_last = float(rec.t[-1])
         f = out["flags"]
+        if n:
+            self._flags = int(f[-1])
         return Estimate(
-            t=rec.t, q=out["q"], estimator=self.name, params=self.params.as_dict(),
-            frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
+            t=np.asarray(t_s, dtype=float), q=out["q"], estimator=self.name,
+            params=self.params.as_dict(), frames={"reference": "ENU", "body": "sensor"},
             signals={"bias_rad_s": out["bias"],
                      "bias_at_limit": (f & BIAS_AT_LIMIT) != 0,
                      "rest": out["rest"],
@@ -624,3 +685,21 @@ class RobustAHRS(Estimator):
                      "acc_skipped": (f & ACC_SKIPPED) != 0,
                      "mag_skipped": (f & MAG_SKIPPED) != 0, "gap": (f & GAP) != 0},
         )
+
+    def run(self, rec: Recording) -> Estimate:
+        """Whole recording through the compiled kernel (``prepare`` when the nominal sample
+        times are not set yet, then ``update_many`` over its rows, each sensor at its own
+        rate); ``rec.frames['reference']`` must be ENU."""
+        self.check_inputs(rec)
+        n = len(rec)
+        dt = np.empty(n)
+        dt[0] = self.first_dt(rec)
+        dt[1:] = np.diff(rec.t)
+        if self.ts is None:
+            self.prepare(rec)
+        est = self._batch(dt, np.asarray(rec.gyro, dtype=float),
+                          np.asarray(rec.on_time_base("accel"), dtype=float),
+                          np.asarray(rec.on_time_base("mag"), dtype=float), rec.t)
+        self.t_last = float(rec.t[-1])
+        est.frames = {"reference": rec.frames.get("reference", "ENU"), "body": "sensor"}
+        return est

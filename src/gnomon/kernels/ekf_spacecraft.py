@@ -14,7 +14,9 @@ Shape (see ``gnomon.kernels``): ``STATE`` holds ``z = [w_ib_b, q_ob]`` (7,), ``P
 (7, 7) and the known inputs of the last sample, which drive the prediction to the next
 one; ``Coefficients`` the inertia, noise and options, built by ``coefficients``. One
 sample (``ekf_step``) is the state prediction (RK4 of the dynamics), the covariance
-prediction, then the magnetometer and sun rows of one joint update.
+prediction, then the magnetometer and sun rows of one joint update. ``ekf_row`` is one
+raw sample (its unit vectors, the step, its known inputs held): the batch loop
+``ekf_batch`` and the per-sample kernel ``ekf_sample`` both run it.
 """
 
 from __future__ import annotations
@@ -36,9 +38,11 @@ from gnomon.kernels.quat import (
 
 #: ``z`` (7,) ``[w_ib_b (rad/s), q_ob]``, ``P`` (7, 7); held inputs of the last sample:
 #: ``w_io_o`` (rad/s, orbital frame), wheel momentum ``h_b`` (N m s), its rate ``hdot_b``
-#: (N m) and the known external torque ``tau_b`` (N m), all in b.
+#: (N m) and the known external torque ``tau_b`` (N m), all in b; ``pending``: the next
+#: sample is the initial state (a fresh start: no step, its inputs held).
 STATE = np.dtype([("z", np.float64, 7), ("P", np.float64, (7, 7)), ("w_io_o", np.float64, 3),
-                  ("h_b", np.float64, 3), ("hdot_b", np.float64, 3), ("tau_b", np.float64, 3)])
+                  ("h_b", np.float64, 3), ("hdot_b", np.float64, 3), ("tau_b", np.float64, 3),
+                  ("pending", np.bool_)])
 
 
 class Coefficients(NamedTuple):
@@ -222,28 +226,71 @@ def hold_inputs(s, w_io_o, h_b, hdot_b, tau_b):
 
 
 @njit(cache=True)
-def ekf_batch(c, state, first, dt, mag_u, sun_u, sun_valid, b_o_u, s_o_u, w_io_o, h, hdot, tau,
-              z_out, p_diag, innov):
-    """The paper's EKF over N samples (:func:`ekf_step` per sample).
+def unit_or_zero(v):
+    """``v`` (3,) normalised as a new array; zero (no vector) for a zero or non-finite one
+    (the arithmetic of ``v / np.linalg.norm(v)``)."""
+    out = np.zeros(3)
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if n > 0.0 and math.isfinite(n):
+        out[0], out[1], out[2] = v[0] / n, v[1] / n, v[2] / n
+    return out
 
-    ``c`` ``Coefficients``; ``state`` a ``STATE`` array of one element, continued in place.
-    Rows ``k >= first`` are filter steps over ``dt[k]`` s with the inputs held from row
-    k−1 (or from the state at k = 0); ``first = 1`` for a fresh start (row 0 is the
-    initial state), 0 to continue an earlier run. Inputs (N rows): measured unit vectors
-    ``mag_u``, ``sun_u`` in b; ``sun_valid`` (N,) bool; reference unit vectors ``b_o_u``,
-    ``s_o_u`` in o; ``w_io_o`` (N, 3) rad/s; ``h``, ``hdot``, ``tau`` (N, 3) known wheel
-    momentum, its rate and external torque. Outputs: ``z_out`` (N, 7), ``p_diag`` (N, 7)
-    the covariance diagonal, ``innov`` (N, 2) innovation norms (NaN where a vector was not
-    used).
+
+@njit(cache=True)
+def ekf_row(c, s, dt, mag_b, b_o, sun_b, s_o, sun_valid, w_io_o, h, hdot, tau, innov):
+    """One raw sample on the record ``s``: the measured vectors ``mag_b``, ``sun_b`` (b) and
+    their models ``b_o``, ``s_o`` (o) as unit vectors (any one unit; a zero or non-finite
+    vector is none; the field is unused without its model, the sun without its model or
+    ``sun_valid``), then :func:`ekf_step` over ``dt`` (none for the initial state of a fresh
+    start, ``s.pending``), then this sample's known inputs held (``w_io_o``, ``h``,
+    ``hdot``, ``tau``: they drive the prediction to the next sample); ``innov`` (2,)."""
+    innov[0] = np.nan
+    innov[1] = np.nan
+    b_o_u = unit_or_zero(b_o)
+    s_o_u = unit_or_zero(s_o)
+    mag_u = unit_or_zero(mag_b) if b_o_u[0] != 0.0 or b_o_u[1] != 0.0 or b_o_u[2] != 0.0 \
+        else np.zeros(3)
+    sun_ok = c.use_sun and sun_valid and (s_o_u[0] != 0.0 or s_o_u[1] != 0.0
+                                          or s_o_u[2] != 0.0)
+    sun_u = unit_or_zero(sun_b) if sun_ok else np.zeros(3)
+    if s.pending:
+        s.pending = False
+    else:
+        ekf_step(c, s, dt, mag_u, b_o_u, sun_u, s_o_u, sun_ok, innov)
+    hold_inputs(s, w_io_o, h, hdot, tau)
+
+
+@njit(cache=True)
+def ekf_sample(dt, mag_b, b_o, sun_b, s_o, w_io_o, h, hdot, tau, state, c, q_out):
+    """One raw sample as a row of ``ekf_batch`` (the same arithmetic: ``ekf_row``), the
+    vectors (3,) (a sun pair with a non-finite component: no sun); ``state`` updated in
+    place; ``c`` the ``Coefficients``; ``q_out`` (4,) the estimate ``q_ob``. Returns 0 (the
+    filter has no flags; it takes no gyro)."""
+    s = state[0]
+    ekf_row(c, s, dt, mag_b, b_o, sun_b, s_o, True, w_io_o, h, hdot, tau, np.empty(2))
+    for i in range(4):
+        q_out[i] = s.z[3 + i]
+    return 0
+
+
+@njit(cache=True)
+def ekf_batch(c, state, dt, mag_b, b_o, sun_b, s_o, sun_valid, w_io_o, h, hdot, tau, z_out,
+              p_diag, innov):
+    """The paper's EKF over N raw samples (:func:`ekf_row` per sample).
+
+    ``c`` ``Coefficients``; ``state`` a ``STATE`` array of one element, continued in place
+    (row k steps over ``dt[k]`` s with the inputs held from row k−1, or from the state at
+    k = 0; after a fresh start, row 0 is the initial state). Inputs (N rows): measured
+    vectors ``mag_b``, ``sun_b`` in b; ``sun_valid`` (N,) bool; their models ``b_o``,
+    ``s_o`` in o (any units: directions); ``w_io_o`` (N, 3) rad/s; ``h``, ``hdot``,
+    ``tau`` (N, 3) known wheel momentum, its rate and external torque. Outputs: ``z_out``
+    (N, 7), ``p_diag`` (N, 7) the covariance diagonal, ``innov`` (N, 2) innovation norms
+    (NaN where a vector was not used).
     """
     s = state[0]
     for k in range(dt.shape[0]):
-        innov[k, 0] = np.nan
-        innov[k, 1] = np.nan
-        if k >= first:
-            ekf_step(c, s, dt[k], mag_u[k], b_o_u[k], sun_u[k], s_o_u[k],
-                     c.use_sun and sun_valid[k], innov[k])
-        hold_inputs(s, w_io_o[k], h[k], hdot[k], tau[k])
+        ekf_row(c, s, dt[k], mag_b[k], b_o[k], sun_b[k], s_o[k], sun_valid[k], w_io_o[k], h[k],
+                hdot[k], tau[k], innov[k])
         z_out[k] = s.z
         for i in range(7):
             p_diag[k, i] = s.P[i, i]

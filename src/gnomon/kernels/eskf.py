@@ -1,7 +1,8 @@
 """Compiled kernel of the error-state AHRS Kalman filter (seed 002, Bilous & Nesterenko).
 
-Readable twin: ``gnomon.estimators.eskf.Eskf.update`` (numpy matrices, the same phases
-on the same ``STATE`` record); ``tests/test_eskf.py`` compares the two step by step.
+Readable twin: ``gnomon.estimators.eskf.Eskf.update_reference`` (numpy matrices, the
+same phases on the same ``STATE`` record); ``tests/test_eskf.py`` compares the two step by
+step.
 
 Shape (see ``gnomon.kernels``):
 
@@ -21,7 +22,8 @@ Shape (see ``gnomon.kernels``):
   part while the gate is shut) → ``follow_correction`` (the low-pass turns with the
   correction);
 * ``run_batch(inputs, state, coefficients, outputs)`` loops ``step`` over ``Inputs``
-  and writes ``Outputs``.
+  and writes ``Outputs``; ``gnomon.kernels.eskf_sample`` runs one row (the same
+  ``step_row``) for the filter's per-sample ``update``.
 
 The structure of the problem is used throughout: the transition matrix
 ``Φ = [A  cI; 0  I]`` (``A = I - [ω̂×]dt``, ``c = -dt/2``) is never formed; the
@@ -79,7 +81,7 @@ __all__ = [
     "Inputs", "Outputs", "Work", "coefficients", "new_state", "new_outputs", "workspace",
     "predict", "reference_and_gates", "accel_lowpass", "measure_r6", "measure_r3",
     "correct", "inject", "gate_factor", "follow_correction", "bias_gate", "bias_block",
-    "hold_bias", "step", "run_batch", "gain", "joseph",
+    "hold_bias", "step", "step_row", "run_batch", "gain", "joseph",
 ]
 
 MODE_PREDICT_ONLY = 0
@@ -637,19 +639,26 @@ def _one_sensor_correction(s, c, mode, ax, ay, az, mx, my, mz, na, nm, new_a, w,
 
 @njit(inline="always", **_JIT)
 def step(s, c, mode, inputs, k, w, since, scratch):
-    """Sample ``k`` of ``inputs`` on the record ``s`` (``w``: a ``Work``; ``mode`` is
-    ``c.mode``, a constant in each of ``run_batch``'s loops; ``since``: the time since the
-    accelerometer's previous sample, kept in a register by the loop rather than in
-    ``s.since_acc_s``). Returns ``(rows, since)``: how many measurement rows corrected
-    the state: 0 when neither sensor has a usable new sample (a zero vector, or NaN: no
-    sample in this row), r when both do, fewer when only one does (``one_sensor``);
-    ``w.y`` holds those rows."""
-    dt = inputs.dt[k]
-    predict(s, c, inputs.gyro[k, 0], inputs.gyro[k, 1], inputs.gyro[k, 2], dt, w.A, w.T, w.U)
+    """Sample ``k`` of ``inputs`` on the record ``s``: ``step_row`` on its values."""
+    return step_row(s, c, mode, inputs.dt[k], inputs.gyro[k, 0], inputs.gyro[k, 1],
+                    inputs.gyro[k, 2], inputs.accel[k, 0], inputs.accel[k, 1],
+                    inputs.accel[k, 2], inputs.mag[k, 0], inputs.mag[k, 1], inputs.mag[k, 2],
+                    w, since, scratch)
+
+
+@njit(inline="always", **_JIT)
+def step_row(s, c, mode, dt, gx, gy, gz, ax, ay, az, mx, my, mz, w, since, scratch):
+    """One sample (``dt`` s, gyro rad/s, accelerometer m/s², normalised magnetometer; a
+    NaN or zero ``a``/``m``: no sample of that sensor) on the record ``s`` (``w``: a
+    ``Work``; ``mode`` is ``c.mode``, a constant in each of ``run_batch``'s loops;
+    ``since``: the time since the accelerometer's previous sample, kept in a register by
+    the loop rather than in ``s.since_acc_s``). Returns ``(rows, since)``: how many
+    measurement rows corrected the state: 0 when neither sensor has a usable new sample
+    (a zero vector, or NaN: no sample in this row), r when both do, fewer when only one
+    does (``one_sensor``); ``w.y`` holds those rows."""
+    predict(s, c, gx, gy, gz, dt, w.A, w.T, w.U)
     if mode == MODE_PREDICT_ONLY:
         return 0, since
-    ax, ay, az = inputs.accel[k, 0], inputs.accel[k, 1], inputs.accel[k, 2]
-    mx, my, mz = inputs.mag[k, 0], inputs.mag[k, 1], inputs.mag[k, 2]
     na = math.sqrt(ax * ax + ay * ay + az * az)
     nm = math.sqrt(mx * mx + my * my + mz * mz)
     since += dt

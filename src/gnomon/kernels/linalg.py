@@ -11,6 +11,8 @@ innovation covariances of these filters (tested against ``numpy.linalg``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -176,3 +178,12 @@ def skew_into(out, row, scale, vx, vy, vz):
     out[row + 2, 0] = -scale * vy
     out[row + 2, 1] = scale * vx
     out[row + 2, 2] = 0.0
+
+
+@njit(inline="always")
+def finite_or_nan(x, y, z):
+    """A sample's three components, or three NaN (no sample) when any is not finite: a
+    partly broken sample never reaches a filter's state."""
+    if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+        return x, y, z
+    return math.nan, math.nan, math.nan

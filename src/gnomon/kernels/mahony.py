@@ -19,7 +19,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.entry import BAD_GYRO
 from gnomon.kernels.linalg import cross as _cross
+from gnomon.kernels.linalg import finite_or_nan
 from gnomon.kernels.quat import dcm as _dcm
 from gnomon.kernels.quat import exp_mul as _exp_mul
 
@@ -150,42 +152,51 @@ def mahony_step(q, b, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)
+def _row(w, x, y, z, b0, b1, b2, sa, sm, h, gx, gy, gz, ax, ay, az, mx, my, mz, c,
+         multi_rate):
+    """One row of the batch loop on the state in registers (``q``, ``bias``, the times
+    since the accelerometer and the magnetometer were used): returns them updated and the
+    row's flags. ``multi_rate``: a NaN ``acc``/``mag`` row is no new sample of that sensor
+    (a new one is integrated over the time since its previous sample); a constant in each
+    compiled copy of the callers."""
+    f = 0
+    if h > c.max_dt_s:  # gap: gyro propagation only
+        w, x, y, z, _ = _exp_mul(w, x, y, z, (gx - b0) * h, (gy - b1) * h, (gz - b2) * h,
+                                 True, True)
+        sa, sm = 0.0, 0.0
+        f = 4
+    elif h > 0.0:
+        ra, rm = 1.0, 1.0
+        if multi_rate:
+            max_dt = c.max_dt_s
+            sa, sm = sa + h, sm + h
+            new_a = ax == ax
+            new_m = mx == mx
+            ra = (1.0 if sa == h else min(sa, max_dt) / h) if new_a else 0.0
+            rm = (1.0 if sm == h else min(sm, max_dt) / h) if new_m else 0.0
+            sa = 0.0 if new_a else sa
+            sm = 0.0 if new_m else sm
+            if not new_a:  # no sample: a zero vector (a zero error, flagged skipped)
+                ax, ay, az = 0.0, 0.0, 0.0
+            if not new_m:
+                mx, my, mz = 0.0, 0.0, 0.0
+        w, x, y, z, b0, b1, b2, f, _ = _core(w, x, y, z, b0, b1, b2, h, gx, gy, gz, ax, ay, az,
+                                             mx, my, mz, c, True, ra, rm)
+    return w, x, y, z, b0, b1, b2, sa, sm, f
+
+
+@njit(inline="always", error_model="numpy", fastmath=_FAST)
 def _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, multi_rate):
-    """The loop of ``mahony_batch``; ``multi_rate`` is a constant in each of its two
-    copies (without it, the single-rate loop carries no bookkeeping of sample times)."""
+    """The loop of ``mahony_batch``: ``_row`` per sample, the state in registers;
+    ``multi_rate`` is a constant in each of its two copies (without it, the single-rate
+    loop carries no bookkeeping of sample times)."""
     w, x, y, z = s.q[0], s.q[1], s.q[2], s.q[3]
     b0, b1, b2 = s.bias[0], s.bias[1], s.bias[2]
     sa, sm = s.since_acc_s, s.since_mag_s
-    max_dt = c.max_dt_s
     for i in range(dt.shape[0]):
-        h = dt[i]
-        f = 0
-        if h > max_dt:  # gap: gyro propagation only
-            w, x, y, z, _ = _exp_mul(w, x, y, z, (gyro[i, 0] - b0) * h, (gyro[i, 1] - b1) * h,
-                                     (gyro[i, 2] - b2) * h, True, True)
-            sa, sm = 0.0, 0.0
-            f = 4
-        elif h > 0.0:
-            ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
-            mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
-            ra, rm = 1.0, 1.0
-            if multi_rate:
-                # a sensor without a new sample in this row (NaN) gives no correction; a
-                # new one is integrated over the time since its previous sample
-                sa, sm = sa + h, sm + h
-                new_a = acc[i, 0] == acc[i, 0]
-                new_m = mag[i, 0] == mag[i, 0]
-                ra = (1.0 if sa == h else min(sa, max_dt) / h) if new_a else 0.0
-                rm = (1.0 if sm == h else min(sm, max_dt) / h) if new_m else 0.0
-                sa = 0.0 if new_a else sa
-                sm = 0.0 if new_m else sm
-                if not new_a:  # no sample: a zero vector (a zero error, flagged skipped)
-                    ax, ay, az = 0.0, 0.0, 0.0
-                if not new_m:
-                    mx, my, mz = 0.0, 0.0, 0.0
-            w, x, y, z, b0, b1, b2, f, _ = _core(
-                w, x, y, z, b0, b1, b2, h, gyro[i, 0], gyro[i, 1], gyro[i, 2], ax, ay, az,
-                mx, my, mz, c, True, ra, rm)
+        w, x, y, z, b0, b1, b2, sa, sm, f = _row(
+            w, x, y, z, b0, b1, b2, sa, sm, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2],
+            acc[i, 0], acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2], c, multi_rate)
         flags[i] = f
         q_out[i, 0] = w
         q_out[i, 1] = x
@@ -215,6 +226,31 @@ def mahony_batch(dt, gyro, acc, mag, state, c, q_out, b_out, flags, multi_rate):
         _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, True)
     else:
         _batch_loop(dt, gyro, acc, mag, s, c, q_out, b_out, flags, False)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def mahony_sample(dt, gyro, acc, mag, state, c, q_out):
+    """One sample as a row of ``mahony_batch`` in its multi-rate form (the same
+    arithmetic): ``dt`` (s), ``gyro``, ``acc``, ``mag`` (3,) body frame (an ``acc``/``mag``
+    with a NaN is no new sample of that sensor); ``state`` updated in place; ``c`` the
+    coefficients as a record (``gnomon.kernels.entry.record``); ``q_out`` (4,) the
+    estimate. Returns the flags of ``mahony_step``, or ``BAD_GYRO`` alone for a non-finite
+    gyro sample (nothing done). The filter's ``update`` calls it through
+    ``gnomon.kernels.entry.entry_point``; no memory is allocated."""
+    gx, gy, gz = gyro[0], gyro[1], gyro[2]
+    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+        return BAD_GYRO
+    ax, ay, az = finite_or_nan(acc[0], acc[1], acc[2])
+    mx, my, mz = finite_or_nan(mag[0], mag[1], mag[2])
+    s = state[0]
+    w, x, y, z, b0, b1, b2, sa, sm, f = _row(
+        s.q[0], s.q[1], s.q[2], s.q[3], s.bias[0], s.bias[1], s.bias[2], s.since_acc_s,
+        s.since_mag_s, dt, gx, gy, gz, ax, ay, az, mx, my, mz, c[0], True)
+    s.q[0], s.q[1], s.q[2], s.q[3] = w, x, y, z
+    s.bias[0], s.bias[1], s.bias[2] = b0, b1, b2
+    s.since_acc_s, s.since_mag_s = sa, sm
+    q_out[0], q_out[1], q_out[2], q_out[3] = w, x, y, z
+    return f
 
 
 @njit(inline="always", error_model="numpy", fastmath=_FAST)

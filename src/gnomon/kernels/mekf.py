@@ -8,8 +8,9 @@ estimate ``q_ob`` (orbital from body) with the error state
 ``q = q̂ ⊗ exp(θ)`` (θ in body axes), ``δb`` the gyro bias error, ``δm`` the
 magnetometer bias error (``estimate_mag_bias``), ``δs`` the gyro scale-factor error
 (``estimate_gyro_scale``; the gyro measures ``(I + diag(s)) ω + b``). The readable twin,
-phase by phase in numpy, is ``gnomon.estimators.mekf.MEKF.step`` (tested against this
-kernel sample by sample); the equations are in that module's docstring.
+phase by phase in numpy, is ``gnomon.estimators.mekf_reference.ReadableMEKF.step``
+(tested against this kernel sample by sample); the equations are in
+``gnomon.estimators.mekf``'s docstring.
 
 The numerical form is chosen by four options, so that the two filters gnomon had
 before (``mekf-delayed`` for seed 000, ``mekf-spacecraft`` for seed 001) are presets of
@@ -28,11 +29,13 @@ this one and reproduce their earlier results:
 Shape (see ``gnomon.kernels``): ``STATE`` (one record), ``Coefficients`` from
 ``coefficients(params)``; the step's phases are the gyro prediction (attitude, then
 covariance), the vector updates (magnetometer, then the sun or the delayed pair) and
-the star tracker; the batch loop calls the step, holds the gyro sample and writes the
-outputs. The step, the prediction and the vector update are ``inline="always"`` (a call
-per sample passes a dozen arrays: measured 1.5x slower); the magnetometer, its magnitude
-row and the star tracker are plain compiled functions (with everything inlined, numba
-took ~100 s to compile the batch loop). Matrices live in ``(12, 12)`` storage; the
+the star tracker; ``row`` (one raw sample: the second pair from the tail, the step,
+the gyro sample held, the estimate into the tail) is what the buffer loop
+``mekf_stream`` and the per-sample kernel ``mekf_sample`` both run. The step, the
+prediction and the vector update are ``inline="always"`` (a call per sample passes a
+dozen arrays: measured 1.5x slower); the magnetometer, its magnitude row and the star
+tracker are plain compiled functions (with everything inlined, numba took ~100 s to
+compile the batch loop). Matrices live in ``(12, 12)`` storage; the
 loops run over the ``n`` states in use, so a 6-state filter does 6-state work.
 """
 
@@ -44,9 +47,23 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.entry import BAD_GYRO
 from gnomon.kernels.linalg import inv3_into, skew_into
 from gnomon.kernels.quat import dcm, exp, mul, normalised, rotate_inv
-from gnomon.kernels.spacecraft_cf import COAST, GAP, MAG, SECOND, turn, unit_pair
+from gnomon.kernels.spacecraft_cf import (
+    COAST,
+    GAP,
+    MAG,
+    RING,
+    SECOND,
+    SUBSTITUTED,
+    SUBSTITUTES,
+    TAIL_STATE,
+    finite3,
+    second_pair,
+    turn,
+    unit_pair,
+)
 
 #: flag column of a star-tracker measurement that was due and not used (gated out or
 #: unusable); columns 0-3 are those of ``gnomon.kernels.spacecraft_cf``
@@ -56,11 +73,12 @@ NX = 12  # storage size of the error state
 #: ``q`` (4,) q_ob; ``bias`` (3,) rad/s; ``mag_bias`` (3,) nT; ``scale`` (3,) gyro scale
 #: factors (1); ``P`` (12, 12) covariance of the error state (the first n rows in use);
 #: ``gyro_b`` (3,) rad/s and ``w_io_o`` (3,) rad/s: the last sample's gyro and orbital
-#: rate (they propagate to the next sample when ``previous_gyro``).
+#: rate (they propagate to the next sample when ``previous_gyro``); the tail's position
+#: (``spacecraft_cf.TAIL_STATE``: the delayed pair's past samples are in a ``RING``).
 STATE = np.dtype([("q", np.float64, 4), ("bias", np.float64, 3),
                   ("mag_bias", np.float64, 3), ("scale", np.float64, 3),
                   ("P", np.float64, (NX, NX)), ("gyro_b", np.float64, 3),
-                  ("w_io_o", np.float64, 3)])
+                  ("w_io_o", np.float64, 3)] + TAIL_STATE)
 
 
 class Coefficients(NamedTuple):
@@ -73,7 +91,8 @@ class Coefficients(NamedTuple):
     not estimated); ``max_dt_s`` gaps; the delayed pair's ``delay_samples`` and
     ``swing_gain``; the form (module docstring); the star tracker's
     ``st_sigma_cross_rad``, ``st_sigma_about_rad``, ``st_latency_s``, ``st_gate_chi2``
-    (0: no gate)."""
+    (0: no gate); the sun's ``substitute`` (``spacecraft_cf.SUBSTITUTES``) and
+    ``use_sun`` (false: no second pair at all)."""
 
     sigma_mag_rad: float
     mag_noise_nT: float
@@ -97,6 +116,8 @@ class Coefficients(NamedTuple):
     st_sigma_about_rad: float
     st_latency_s: float
     st_gate_chi2: float
+    substitute: int
+    use_sun: bool
 
 
 def coefficients(p) -> Coefficients:
@@ -115,7 +136,7 @@ def coefficients(p) -> Coefficients:
                         bool(p.relinearise), p.correction == "exponential",
                         float(p.st_sigma_cross_rad),
                         float(p.st_sigma_about_rad), float(p.st_latency_s),
-                        float(p.st_gate_chi2))
+                        float(p.st_gate_chi2), SUBSTITUTES[p.sun_substitute], bool(p.use_sun))
 
 
 class _Work(NamedTuple):
@@ -489,36 +510,67 @@ def step(c, s, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted
         flags[COAST] = 1
 
 
+@njit(inline="always", error_model="numpy")
+def row(c, s, ring, dt, g, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid, substituted, given,
+        st_q, st_valid, st_bore, flags, innov, work):
+    """One raw sample on the record ``s`` and its tail ``ring``: the second pair (the sun,
+    or the magnetometer pair ``delay_samples`` ago: ``spacecraft_cf.second_pair``; with
+    ``given``, ``sun_b``/``sun_o``/``sun_valid``/``substituted`` are that pair already),
+    ``step`` (the delayed pair weighted by the swing since the estimate in the tail), the
+    gyro sample held, the estimate into the tail. Returns whether the second pair was the
+    substitute."""
+    m = c.delay_samples
+    k = s.n_seen
+    if given:
+        slot = k % m
+        s.n_seen = k + 1
+        sb, so = (sun_b[0], sun_b[1], sun_b[2]), (sun_o[0], sun_o[1], sun_o[2])
+        ok, sub = sun_valid, substituted
+    else:
+        sb, so, ok, sub, slot = second_pair(c, c.substitute, s, ring, dt, g, w_io_o, mag_b,
+                                            mag_o, sun_b, sun_o, sun_valid)
+        ok = ok and c.use_sun
+    step(c, s, dt, g, w_io_o, mag_b, mag_o, sb, so, ok, sub, k >= m, ring[slot].q, st_q,
+         st_valid, st_bore, flags, innov, work)
+    for j in range(3):  # hold: propagates to the next sample when previous_gyro
+        s.gyro_b[j] = g[j]
+        s.w_io_o[j] = w_io_o[j]
+    if c.substitute > 0:  # the tail is read only for the delayed pair
+        q_then = ring[slot].q
+        for j in range(4):
+            q_then[j] = s.q[j]
+    return sub
+
+
 @njit(cache=True, error_model="numpy")
-def mekf_batch(c, state, dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid,
-               substituted, st_q, st_valid, st_bore, q_out, bias_out, mag_bias_out,
-               scale_out, p_out, flags, innov):
-    """``mekf`` over N samples, continuing ``state`` (a ``STATE`` array of one element).
+def mekf_stream(c, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid,
+                substituted, given, st_q, st_valid, st_bore, q_out, bias_out, mag_bias_out,
+                scale_out, p_out, flags, innov):
+    """``mekf`` over N raw samples (``row`` per row), continuing ``state`` and its tail
+    ``ring`` (``spacecraft_cf.RING``, ``delay_samples`` records) in place.
 
     ``c`` ``Coefficients``. Inputs (N rows): ``dt`` s (row k steps from row k−1; 0 or
     non-finite: no step), ``gyro`` ω_ib_b rad/s, ``w_io_o`` rad/s (o), the magnetometer
-    pair ``mag_b`` (b, nT) / ``mag_o`` (o), the second pair ``sec_b`` / ``sec_o`` with
-    ``sec_valid`` and ``substituted`` (the paper's magnetometer pair delayed by
-    ``delay_samples``, used with the noise ``sqrt(σ_mag² + (swing_gain·Δ)²)``, Δ the
-    angle between the estimate now and M samples ago, from this batch's own output),
-    the star tracker's ``st_q`` q̂_ob (N, 4) with ``st_valid`` and its boresight
-    ``st_bore`` (b). Outputs: ``q_out`` (N, 4) q_ob, ``bias_out`` (N, 3) rad/s,
-    ``mag_bias_out`` (N, 3) nT, ``scale_out`` (N, 3), ``p_out`` (N, n, n) the covariance
-    (or (N, 0, 0): not kept), ``flags`` (N, 5) int8, ``innov`` (N, 2) the innovation
-    norms of the magnetometer and the second pair (NaN where not used).
+    pair ``mag_b`` (b, nT) / ``mag_o`` (o), the sun pair ``sun_b`` / ``sun_o`` with
+    ``sun_valid`` (where it is not, the paper's magnetometer pair delayed by
+    ``delay_samples`` from the tail if ``c.substitute``, used with the noise
+    ``sqrt(σ_mag² + (swing_gain·Δ)²)``, Δ the angle between the estimate now and M
+    samples ago); ``substituted`` (N,) bool written with the rows whose second pair was
+    the substitute (``given``: the second pairs ``sun_b``, ``sun_o``, ``sun_valid`` are
+    given already, ``substituted`` says which are the substitute); the star tracker's
+    ``st_q`` q̂_ob (N, 4) with ``st_valid`` and its boresight ``st_bore`` (b). Outputs:
+    ``q_out`` (N, 4) q_ob, ``bias_out`` (N, 3) rad/s, ``mag_bias_out`` (N, 3) nT,
+    ``scale_out`` (N, 3), ``p_out`` (N, n, n) the covariance (or (N, 0, 0): not kept),
+    ``flags`` (N, 5) int8, ``innov`` (N, 2) the innovation norms of the magnetometer and
+    the second pair (NaN where not used).
     """
     s = state[0]
     work = _work()
-    m = c.delay_samples
     keep_p = p_out.shape[1] > 0
     for i in range(dt.shape[0]):
-        has_old = i >= m
-        step(c, s, dt[i], gyro[i], w_io_o[i], mag_b[i], mag_o[i], sec_b[i], sec_o[i],
-             sec_valid[i], substituted[i], has_old, q_out[i - m if has_old else i],
-             st_q[i], st_valid[i], st_bore[i], flags[i], innov[i], work)
-        for j in range(3):  # hold: propagates to the next sample when previous_gyro
-            s.gyro_b[j] = gyro[i, j]
-            s.w_io_o[j] = w_io_o[i, j]
+        substituted[i] = row(c, s, ring, dt[i], gyro[i], w_io_o[i], mag_b[i], mag_o[i],
+                             sun_b[i], sun_o[i], sun_valid[i], substituted[i], given, st_q[i],
+                             st_valid[i], st_bore[i], flags[i], innov[i], work)
         for j in range(4):
             q_out[i, j] = s.q[j]
         for j in range(3):
@@ -529,3 +581,41 @@ def mekf_batch(c, state, dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid
             for a in range(c.n):
                 for k in range(c.n):
                     p_out[i, a, k] = s.P[a, k]
+
+
+@njit(cache=True, error_model="numpy")
+def mekf_sample(dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, st_q, st_bore, state, ring, c,
+                q_out):
+    """One raw sample as a row of ``mekf_stream`` (the same arithmetic): ``dt`` (s), the
+    vectors (3,) and the star tracker's ``st_q`` (4,) (a sun pair or a tracker attitude
+    with a non-finite component: none); ``state``, ``ring`` updated in place; ``c`` the
+    coefficients as a record (``gnomon.kernels.entry.record``); ``q_out`` (4,) the
+    estimate. Returns the flag bits ``1 << column`` (``SUBSTITUTED`` too), or ``BAD_GYRO``
+    alone for a non-finite gyro sample (nothing done)."""
+    if not finite3(gyro):
+        return BAD_GYRO
+    s = state[0]
+    flags = np.zeros(5, np.int8)
+    innov = np.empty(2)
+    st_valid = (finite3(st_q) and math.isfinite(st_q[3]))
+    sub = row(c[0], s, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, True, False, False,
+              st_q, st_valid, st_bore, flags, innov, _work())
+    f = SUBSTITUTED if sub else 0
+    for j in range(5):
+        f |= int(flags[j]) << j
+    for j in range(4):
+        q_out[j] = s.q[j]
+    return f
+
+
+def mekf_batch(c, state, dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid,
+               substituted, st_q, st_valid, st_bore, q_out, bias_out, mag_bias_out,
+               scale_out, p_out, flags, innov):
+    """``mekf`` over N samples whose second pairs are made already (``sec_b``, ``sec_o``,
+    ``sec_valid``, ``substituted``: ``gnomon.estimators.ecf_spacecraft.vector_pairs``),
+    continuing ``state``: ``mekf_stream`` with ``given`` (the delayed pair's swing from
+    a tail of this call's estimates; the rest as there). Seed 000's speed table times it."""
+    mekf_stream(c, state, np.zeros(c.delay_samples, RING), dt, gyro, w_io_o, mag_b, mag_o,
+                sec_b, sec_o, sec_valid, np.asarray(substituted, np.bool_).copy(), True, st_q,
+                st_valid, st_bore, q_out, bias_out, mag_bias_out, scale_out, p_out, flags,
+                innov)

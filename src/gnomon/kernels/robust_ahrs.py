@@ -1,7 +1,7 @@
 """Compiled step of the robust decoupled AHRS (``gnomon.estimators.robust_ahrs``): its
 coefficients, its state and the per-sample step, phase by phase.
 
-Twin of ``RobustAHRS.update`` (the tests compare the two sample by sample). The shape
+Twin of ``RobustAHRS.update_reference`` (the tests compare the two sample by sample). The shape
 is the one of every gnomon kernel (``gnomon/kernels/__init__.py`` says why): the
 ``Coefficients`` named tuple is built once from the parameters and the nominal sample
 time by ``coefficients(params, ts_s)``; the evolving state is one record of the
@@ -28,6 +28,10 @@ locals stay in registers:
 5. ``mag_accumulate`` → ``hard_iron`` → ``mag_disturbance`` / ``new_field`` →
    ``heading_gain`` → ``heading``: the magnetometer, heading only.
 
+The batch loop (``robust_ahrs_batch``) and the per-sample kernel of the filter's ``update``
+(``robust_ahrs_sample``, the coefficients as a record) run the same row (``_row``: the
+step and ``q_nb``).
+
 The 3x3 matrices of a phase (``R_6b``, ``P``, ``S``) are row-major 9-tuples
 (``gnomon.kernels.linalg.mat3_*``), read from the record once and written back once.
 """
@@ -41,10 +45,12 @@ import numpy as np
 from numba import njit
 
 from gnomon.kernels import linalg, quat
+from gnomon.kernels.entry import BAD_GYRO
 
 __all__ = ["LowPass", "Coefficients", "coefficients", "butter2", "STATE", "LOWPASS_2",
            "LOWPASS_3", "LOWPASS_33", "HARD_IRON", "new_state", "robust_ahrs_step",
-           "robust_ahrs_batch", "ACC_SKIPPED", "MAG_SKIPPED", "GAP", "BIAS_AT_LIMIT"]
+           "robust_ahrs_batch", "robust_ahrs_sample", "ACC_SKIPPED", "MAG_SKIPPED", "GAP",
+           "BIAS_AT_LIMIT"]
 
 # flag bits returned by the step (``flags`` signal of ``run``)
 ACC_SKIPPED = 1
@@ -765,6 +771,18 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     return flags, q6
 
 
+@njit(inline="always")
+def _row(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
+    """One row of the batch loop (and the sample kernel): ``robust_ahrs_step`` on the state
+    record ``s``, then ``q_nb = q_z(delta) ⊗ q_6b``. Returns ``(flags, q_nb)``: the step's
+    bits and ``BIAS_AT_LIMIT`` while a component of the bias is at ``bias_clip``."""
+    f, q6 = robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+    q = quat.mul(s.cos_half_delta, 0.0, 0.0, s.sin_half_delta, q6[0], q6[1], q6[2], q6[3])
+    if s.bias_at_limit:
+        f |= BIAS_AT_LIMIT
+    return f, q
+
+
 @njit(cache=True, error_model="numpy")
 def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, dist_out,
                       acc_rate_out, k_mag_out, hi_out, flags_out):
@@ -778,14 +796,10 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
     """
     s = state[0]
     for i in range(dt.shape[0]):
-        f, q6 = robust_ahrs_step(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0],
-                                 acc[i, 1], acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])
-        # q_nb = q_z(delta) ⊗ q_6b
-        q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = quat.mul(
-            s.cos_half_delta, 0.0, 0.0, s.sin_half_delta, q6[0], q6[1], q6[2], q6[3])
+        f, q = _row(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
+                    acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])
+        q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = q
         bias_out[i, 0], bias_out[i, 1], bias_out[i, 2] = s.bias[0], s.bias[1], s.bias[2]
-        if s.bias_at_limit:
-            f |= BIAS_AT_LIMIT
         rest_out[i] = s.rest
         dist_out[i] = s.mag_disturbed
         acc_rate_out[i] = s.acc_rate
@@ -793,3 +807,22 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
         hi = s.hard_iron.o
         hi_out[i, 0], hi_out[i, 1], hi_out[i, 2] = hi[0], hi[1], hi[2]
         flags_out[i] = f
+
+
+@njit(cache=True, error_model="numpy")
+def robust_ahrs_sample(dt, gyro, acc, mag, state, c, q_out):
+    """One sample as a row of ``robust_ahrs_batch`` (the same arithmetic): ``dt`` (s),
+    ``gyro``, ``acc``, ``mag`` (3,) body frame (an ``acc``/``mag`` with a non-finite
+    component, or a zero one, is no new sample of that sensor); ``state`` updated in place;
+    ``c`` the coefficients as a record (``gnomon.kernels.entry.record``); ``q_out`` (4,)
+    the estimate ``q_nb``. Returns the row's flags, or ``BAD_GYRO`` alone for a non-finite
+    gyro sample (nothing done). The filter's ``update`` calls it through
+    ``gnomon.kernels.entry.entry_point``; no memory is allocated."""
+    gx, gy, gz = gyro[0], gyro[1], gyro[2]
+    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+        return BAD_GYRO
+    ax, ay, az = linalg.finite_or_nan(acc[0], acc[1], acc[2])
+    mx, my, mz = linalg.finite_or_nan(mag[0], mag[1], mag[2])
+    f, q = _row(state[0], c[0], dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+    q_out[0], q_out[1], q_out[2], q_out[3] = q
+    return f

@@ -20,9 +20,17 @@ The per-sample phases are ``inline="always"``: compiled as separate functions, t
 per sample with its array views cost about 40 % of the ECF loop (measured: 4.1 against
 7.0 M samples/s before inlining; inlined, as fast as the one-function loop it replaces).
 
-Flags per sample (int8 row of 4): ``MAG`` mag pair unusable, ``SECOND`` sun/second pair
-(or measured quaternion) unusable, ``GAP`` time gap (gyro-only propagation), ``COAST`` no
-correction at all this sample.
+Flags per sample (int8 row of 4, or the bits ``1 << column`` the steps return): ``MAG``
+mag pair unusable, ``SECOND`` sun/second pair (or measured quaternion) unusable, ``GAP``
+time gap (gyro-only propagation), ``COAST`` no correction at all this sample.
+
+The filters' own paths take raw samples: ``*_stream`` (a buffer of N rows) and
+``*_sample`` (one row, called per sample through ``gnomon.kernels.entry.entry_point``) run
+the same inline row (``ecf_row``, ``qcf_row``): the sun substitute (``second_pair``) from
+the filter's tail of past samples (``RING``, ``delay_samples`` records written in turn;
+the write position and the gyro's and the orbital frame's accumulated rotations are in
+``STATE``), then the step. ``ecf_batch`` / ``qcf_batch`` run the step on pairs already
+substituted (``gnomon.estimators.ecf_spacecraft.vector_pairs``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from gnomon.kernels.entry import BAD_GYRO
 from gnomon.kernels.linalg import cross
 from gnomon.kernels.quat import (
     mul,
@@ -43,15 +52,32 @@ from gnomon.kernels.quat import (
 )
 
 MAG, SECOND, GAP, COAST = 0, 1, 2, 3  # flag columns
+#: bit of a sample kernel's flags: the second pair was the delayed substitute
+SUBSTITUTED = 32
+#: ``sun_substitute`` as the coefficients' ``substitute``
+SUBSTITUTES = {"none": 0, "delayed": 1, "delayed-gyro": 2}
+NONE, DELAYED, DELAYED_GYRO = 0, 1, 2
 
-#: The complementary filters' state: ``q`` (4,) q_ob, ``bias`` (3,) gyro bias (rad/s).
-STATE = np.dtype([("q", np.float64, 4), ("bias", np.float64, 3)])
+#: The tail's fields of a filter's state: ``n_seen`` samples joined the tail so far (the
+#: next one is written at ``n_seen % delay_samples``); ``q_b0b``, ``q_o0o`` (4,) the body's
+#: rotation since the first sample by the raw gyro and the orbital frame's by ``w_io_o``
+#: (``delayed-gyro`` only; the identity otherwise).
+TAIL_STATE = [("n_seen", np.int64), ("q_b0b", np.float64, 4), ("q_o0o", np.float64, 4)]
+#: The complementary filters' state: ``q`` (4,) q_ob, ``bias`` (3,) gyro bias (rad/s), the
+#: tail's fields.
+STATE = np.dtype([("q", np.float64, 4), ("bias", np.float64, 3)] + TAIL_STATE)
+#: One past sample of the tail (``delay_samples`` of them): its magnetic pair ``mag_b``
+#: (b), ``mag_o`` (o), the accumulated rotations ``q_b0b``, ``q_o0o`` at it and the
+#: estimate ``q`` after it (the MEKF's swing since then).
+RING = np.dtype([("mag_b", np.float64, 3), ("mag_o", np.float64, 3), ("q_b0b", np.float64, 4),
+                 ("q_o0o", np.float64, 4), ("q", np.float64, 4)])
 
 
 class ECFCoefficients(NamedTuple):
     """Gains of the explicit filter: ``kp_rad_s``/``ki_rad_s2`` with both pairs usable,
     ``*_single_*`` with one; pair weights; ``max_dt_s`` (longer intervals are gaps);
-    ``min_sin``: pairs whose directions are closer than ``asin(min_sin)`` count as one."""
+    ``min_sin``: pairs whose directions are closer than ``asin(min_sin)`` count as one;
+    the sun's ``substitute`` (``SUBSTITUTES``) ``delay_samples`` ago."""
 
     kp_rad_s: float
     ki_rad_s2: float
@@ -61,17 +87,22 @@ class ECFCoefficients(NamedTuple):
     k_sun: float
     max_dt_s: float
     min_sin: float
+    substitute: int
+    delay_samples: int
 
 
 class QCFCoefficients(NamedTuple):
     """Gains of the quaternion-driven filter: ``kp_rad_s``/``ki_rad_s2`` on the measured
-    quaternion, ``*_single_*`` of the magnetometer-only fallback; ``max_dt_s``."""
+    quaternion, ``*_single_*`` of the magnetometer-only fallback; ``max_dt_s``; the tail
+    kept for the substitute of the sun in ``q_mes`` (``substitute``, ``delay_samples``)."""
 
     kp_rad_s: float
     ki_rad_s2: float
     kp_single_rad_s: float
     ki_single_rad_s2: float
     max_dt_s: float
+    substitute: int
+    delay_samples: int
 
 
 class GaussNewtonCoefficients(NamedTuple):
@@ -87,13 +118,15 @@ def ecf_coefficients(p) -> ECFCoefficients:
     """From a ``SpacecraftCFParams`` (read by attribute; the kernel imports no estimator)."""
     return ECFCoefficients(float(p.kp_rad_s), float(p.ki_rad_s2), float(p.kp_single_rad_s),
                            float(p.ki_single_rad_s2), float(p.k_mag), float(p.k_sun),
-                           float(p.max_dt_s), float(np.sin(np.radians(p.min_angle_deg))))
+                           float(p.max_dt_s), float(np.sin(np.radians(p.min_angle_deg))),
+                           SUBSTITUTES[p.sun_substitute], int(p.delay_samples))
 
 
 def qcf_coefficients(p) -> QCFCoefficients:
     """From a ``QuaternionCFParams``."""
     return QCFCoefficients(float(p.kp_rad_s), float(p.ki_rad_s2), float(p.kp_single_rad_s),
-                           float(p.ki_single_rad_s2), float(p.max_dt_s))
+                           float(p.ki_single_rad_s2), float(p.max_dt_s),
+                           SUBSTITUTES[p.sun_substitute], int(p.delay_samples))
 
 
 def gauss_newton_coefficients(p) -> GaussNewtonCoefficients:
@@ -102,12 +135,20 @@ def gauss_newton_coefficients(p) -> GaussNewtonCoefficients:
                                    float(p.min_quality))
 
 
-def new_state(q0) -> np.ndarray:
-    """A ``STATE`` array of one element at attitude ``q0`` (normalised), zero bias."""
-    state = np.zeros(1, STATE)
+def new_state(q0, dtype=STATE) -> np.ndarray:
+    """A ``dtype`` (``STATE``) array of one element at attitude ``q0`` (normalised), zero
+    bias, an empty tail."""
+    state = np.zeros(1, dtype)
     q0 = np.asarray(q0, float)
     state["q"][0] = q0 / np.linalg.norm(q0)
+    state["q_b0b"][0, 0] = 1.0
+    state["q_o0o"][0, 0] = 1.0
     return state
+
+
+def new_ring(delay_samples: int) -> np.ndarray:
+    """An empty tail: ``delay_samples`` ``RING`` records."""
+    return np.zeros(int(delay_samples), RING)
 
 
 # ---------------------------------------------------------------- phases shared by the filters
@@ -160,21 +201,142 @@ def pi_correct(q, bias, kp, ki, e, dt):
 
 
 @njit(inline="always", error_model="numpy")
-def start_sample(q, bias, dt, g, w_io_o, max_dt, flags):
-    """What every seed-000 filter does first: clear ``flags`` (4,), propagate with the gyro
-    over ``dt``. True when the sample goes on to the measurements (a real interval, not a
-    gap); a gap or a non-finite interval is flagged."""
-    for j in range(4):
-        flags[j] = 0
+def start_sample(q, bias, dt, g, w_io_o, max_dt):
+    """What every seed-000 filter does first: propagate with the gyro over ``dt``. Returns
+    ``(go, flags)``: ``go`` when the sample goes on to the measurements (a real interval,
+    not a gap), ``flags`` the bits so far (a gap or an unusable gyro)."""
     if not (dt > 0.0 and dt < 1e300):
-        return False
+        return False, 0
+    f = 0
     if not predict(q, bias, dt, g, w_io_o):
-        flags[COAST] = 1
+        f = 1 << COAST
     if dt > max_dt:
-        flags[GAP] = 1
-        flags[COAST] = 1
-        return False
-    return True
+        return False, (1 << GAP) | (1 << COAST)
+    return True, f
+
+
+@njit(inline="always")
+def write_flags(f, flags):
+    """The bits ``f`` of a step as the int8 columns ``flags`` (4,)."""
+    for j in range(4):
+        flags[j] = (f >> j) & 1
+
+
+# ---------------------------------------------------------------- the tail: the sun's substitute
+@njit(inline="always", error_model="numpy")
+def _usable(x):
+    """A rate component, 0 where unusable (non-finite or absurd, |x| >= 1e6 rad/s)."""
+    return x if abs(x) < 1e6 else 0.0
+
+
+@njit(inline="always", error_model="numpy")
+def _carried(q_now, q_then, v):
+    """``R(q_now⁻¹ ⊗ q_then) v`` (tuple): a vector of the frame at ``q_then`` in the frame
+    at ``q_now``, both accumulated from the first sample (the arithmetic of
+    ``gnomon.rotation.quat_rotate`` of ``quat_mul(quat_conj(q_now), q_then)``)."""
+    w, x, y, z = mul(q_now[0], -q_now[1], -q_now[2], -q_now[3],
+                     q_then[0], q_then[1], q_then[2], q_then[3])
+    tx, ty, tz = cross(x, y, z, v[0], v[1], v[2])
+    tx, ty, tz = 2.0 * tx, 2.0 * ty, 2.0 * tz
+    cx, cy, cz = cross(x, y, z, tx, ty, tz)
+    return (v[0] + w * tx) + cx, (v[1] + w * ty) + cy, (v[2] + w * tz) + cz
+
+
+@njit(inline="always", error_model="numpy")
+def _accumulate_turns(mode, s, dt, g, w_io_o):
+    """``delayed-gyro``: the body's and the orbital frame's rotations since the first sample
+    turned by this sample's raw gyro and ``w_io_o`` over ``dt`` (unusable values count
+    as 0; the first sample turns nothing)."""
+    if mode == DELAYED_GYRO and s.n_seen > 0:
+        h = dt if math.isfinite(dt) else 0.0
+        turn(s.q_b0b, _usable(g[0]) * h, _usable(g[1]) * h, _usable(g[2]) * h)
+        turn(s.q_o0o, _usable(w_io_o[0]) * h, _usable(w_io_o[1]) * h, _usable(w_io_o[2]) * h)
+
+
+@njit(inline="always", error_model="numpy")
+def _remember(mode, s, ring, slot, mag_b, mag_o):
+    """This sample joins the tail at ``slot``: its magnetic pair (the accumulated rotations
+    for ``delayed-gyro``; nothing without a substitute: the tail is not read then; ``q`` is
+    written after the step)."""
+    if mode != NONE:
+        r = ring[slot]
+        for j in range(3):
+            r.mag_b[j] = mag_b[j]
+            r.mag_o[j] = mag_o[j]
+        if mode == DELAYED_GYRO:
+            for j in range(4):
+                r.q_b0b[j] = s.q_b0b[j]
+                r.q_o0o[j] = s.q_o0o[j]
+    s.n_seen += 1
+
+
+@njit(inline="always", error_model="numpy")
+def tail_push(c, mode, s, ring, dt, g, w_io_o, mag_b, mag_o):
+    """This sample joins the tail (no second pair is made of it: the quaternion-driven
+    filter, whose ``q_mes`` comes from its caller); ``mode`` is ``c.substitute`` (a
+    constant in the buffer loops: one copy of the loop per substitute, its branches
+    folded). Returns its slot."""
+    slot = s.n_seen % c.delay_samples
+    _accumulate_turns(mode, s, dt, g, w_io_o)
+    _remember(mode, s, ring, slot, mag_b, mag_o)
+    return slot
+
+
+@njit(inline="always", error_model="numpy")
+def second_pair(c, mode, s, ring, dt, g, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid):
+    """The second vector pair of a sample, as ``vector_pairs`` makes it: the sun
+    (``sun_b`` in b, ``sun_o`` in o) where valid and finite; else the substitute, the
+    magnetic pair ``delay_samples`` samples ago (``delayed``; carried to now by the
+    accumulated gyro and orbital rotations for ``delayed-gyro``, a non-finite one kept
+    as it is) once there is one; else none. The sample then joins the tail. ``mode`` is
+    ``c.substitute`` (a constant in the buffer loops, see ``tail_push``). Returns
+    ``(sec_b, sec_o, sec_valid, substituted, slot)`` (tuples, bools, the sample's slot: it
+    still holds the estimate ``q`` after the sample ``delay_samples`` ago, if any)."""
+    m = c.delay_samples
+    k = s.n_seen
+    slot = k % m
+    _accumulate_turns(mode, s, dt, g, w_io_o)
+    zero = (0.0, 0.0, 0.0)
+    sb, so, valid, sub = zero, zero, False, False
+    if (sun_valid and math.isfinite(sun_b[0]) and math.isfinite(sun_b[1])
+            and math.isfinite(sun_b[2]) and math.isfinite(sun_o[0])
+            and math.isfinite(sun_o[1]) and math.isfinite(sun_o[2])):
+        sb, so, valid = (sun_b[0], sun_b[1], sun_b[2]), (sun_o[0], sun_o[1], sun_o[2]), True
+    elif mode != NONE and k >= m:
+        r = ring[slot]
+        sb = (r.mag_b[0], r.mag_b[1], r.mag_b[2])
+        so = (r.mag_o[0], r.mag_o[1], r.mag_o[2])
+        valid, sub = True, True
+        if mode == DELAYED_GYRO and (
+                math.isfinite(sb[0]) and math.isfinite(sb[1]) and math.isfinite(sb[2])
+                and math.isfinite(so[0]) and math.isfinite(so[1]) and math.isfinite(so[2])):
+            sb = _carried(s.q_b0b, r.q_b0b, sb)
+            so = _carried(s.q_o0o, r.q_o0o, so)
+    _remember(mode, s, ring, slot, mag_b, mag_o)
+    return sb, so, valid, sub, slot
+
+
+@njit(cache=True, error_model="numpy")
+def pairs_stream(c, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid,
+                 sec_b, sec_o, sec_valid, substituted):
+    """``second_pair`` over N rows continuing ``state``'s tail (``ring``), both updated:
+    the second pairs ``sec_b``, ``sec_o`` (N, 3), ``sec_valid``, ``substituted`` (N,) of
+    the rows (the pairs ``q_mes`` is measured from)."""
+    s = state[0]
+    for i in range(dt.shape[0]):
+        sb, so, ok, sub, _ = second_pair(c, c.substitute, s, ring, dt[i], gyro[i], w_io_o[i],
+                                         mag_b[i], mag_o[i], sun_b[i], sun_o[i], sun_valid[i])
+        for j in range(3):
+            sec_b[i, j] = sb[j]
+            sec_o[i, j] = so[j]
+        sec_valid[i] = ok
+        substituted[i] = sub
+
+
+@njit(inline="always", error_model="numpy")
+def finite3(v):
+    """Whether the three components of ``v`` are finite."""
+    return math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])
 
 
 # ---------------------------------------------------------------- explicit filter (ECF)
@@ -194,16 +356,16 @@ def ecf_pairs(c, mag_b, mag_o, sec_b, sec_o, sec_valid):
 
 
 @njit(inline="always", error_model="numpy")
-def ecf_step(c, q, bias, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, flags):
-    """One sample of the explicit filter (Mahony 2008) on ``q``, ``bias`` in place."""
-    if not start_sample(q, bias, dt, g, w_io_o, c.max_dt_s, flags):
-        return
+def ecf_step(c, q, bias, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid):
+    """One sample of the explicit filter (Mahony 2008) on ``q``, ``bias`` in place; returns
+    its flag bits."""
+    go, f = start_sample(q, bias, dt, g, w_io_o, c.max_dt_s)
+    if not go:
+        return f
     ok_m, ubm, uom, ok_s, ubs, uos = ecf_pairs(c, mag_b, mag_o, sec_b, sec_o, sec_valid)
-    flags[MAG] = 0 if ok_m else 1
-    flags[SECOND] = 0 if ok_s else 1
+    f |= (0 if ok_m else 1 << MAG) | (0 if ok_s else 1 << SECOND)
     if not (ok_m or ok_s):
-        flags[COAST] = 1
-        return
+        return f | (1 << COAST)
     e = (0.0, 0.0, 0.0)
     if ok_m:
         e = vector_error(q, ubm, uom, c.k_mag, e)
@@ -213,6 +375,72 @@ def ecf_step(c, q, bias, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, f
         pi_correct(q, bias, c.kp_rad_s, c.ki_rad_s2, e, dt)
     else:
         pi_correct(q, bias, c.kp_single_rad_s, c.ki_single_rad_s2, e, dt)
+    return f
+
+
+@njit(inline="always", error_model="numpy")
+def ecf_row(c, mode, s, q, bias, ring, dt, g, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid):
+    """One raw sample of the explicit filter on the record ``s`` (``q``, ``bias`` its
+    fields) and its tail ``ring``: ``second_pair`` (``mode`` the substitute), then
+    ``ecf_step``. Returns ``(flags, substituted)``: the flag bits and whether the second
+    pair was the substitute (apart: packed into one int, the loop ran 25 % slower)."""
+    sb, so, ok, sub, _ = second_pair(c, mode, s, ring, dt, g, w_io_o, mag_b, mag_o, sun_b,
+                                     sun_o, sun_valid)
+    return ecf_step(c, q, bias, dt, g, w_io_o, mag_b, mag_o, sb, so, ok), sub
+
+
+@njit(inline="always", error_model="numpy")
+def _ecf_loop(c, mode, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid,
+              q_out, bias_out, flags, substituted):
+    s = state[0]
+    q, bias = s.q, s.bias
+    for i in range(dt.shape[0]):
+        f, sub = ecf_row(c, mode, s, q, bias, ring, dt[i], gyro[i], w_io_o[i], mag_b[i],
+                         mag_o[i], sun_b[i], sun_o[i], sun_valid[i])
+        write_flags(f, flags[i])
+        substituted[i] = sub
+        for j in range(4):
+            q_out[i, j] = q[j]
+        for j in range(3):
+            bias_out[i, j] = bias[j]
+
+
+@njit(cache=True, error_model="numpy")
+def ecf_stream(c, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid, q_out,
+               bias_out, flags, substituted):
+    """The explicit filter over N raw samples (``ecf_row`` per row), continuing ``state``
+    and its tail ``ring`` in place: inputs as ``ecf_batch`` but the sun pair ``sun_b``,
+    ``sun_o`` (N, 3) with ``sun_valid`` (N,) in place of the second pair; outputs as
+    ``ecf_batch`` and ``substituted`` (N,) bool. One copy of the loop per substitute (a
+    constant in each: measured 0.60 against 0.84 ms for 6000 rows with the branches of all
+    three in one loop)."""
+    if c.substitute == DELAYED_GYRO:
+        _ecf_loop(c, DELAYED_GYRO, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o,
+                  sun_valid, q_out, bias_out, flags, substituted)
+    elif c.substitute == DELAYED:
+        _ecf_loop(c, DELAYED, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o,
+                  sun_valid, q_out, bias_out, flags, substituted)
+    else:
+        _ecf_loop(c, NONE, state, ring, dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o,
+                  sun_valid, q_out, bias_out, flags, substituted)
+
+
+@njit(cache=True, error_model="numpy")
+def ecf_sample(dt, gyro, w_io_o, mag_b, mag_o, sun_b, sun_o, state, ring, c, q_out):
+    """One raw sample as a row of ``ecf_stream`` (the same arithmetic): ``dt`` (s), the
+    vectors (3,) (a sun pair with a non-finite component: no sun); ``state``, ``ring``
+    updated in place; ``c`` the coefficients as a record (``gnomon.kernels.entry.record``);
+    ``q_out`` (4,) the estimate. Returns the flag bits, or ``BAD_GYRO`` alone for a
+    non-finite gyro sample (nothing done)."""
+    if not finite3(gyro):
+        return BAD_GYRO
+    s = state[0]
+    c = c[0]
+    f, sub = ecf_row(c, c.substitute, s, s.q, s.bias, ring, dt, gyro, w_io_o, mag_b, mag_o,
+                     sun_b, sun_o, True)
+    for j in range(4):
+        q_out[j] = s.q[j]
+    return f | (SUBSTITUTED if sub else 0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -230,8 +458,8 @@ def ecf_batch(c, state, dt, gyro, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid,
     s = state[0]
     q, bias = s.q, s.bias
     for i in range(dt.shape[0]):
-        ecf_step(c, q, bias, dt[i], gyro[i], w_io_o[i], mag_b[i], mag_o[i], sec_b[i],
-                 sec_o[i], sec_valid[i], flags[i])
+        write_flags(ecf_step(c, q, bias, dt[i], gyro[i], w_io_o[i], mag_b[i], mag_o[i],
+                             sec_b[i], sec_o[i], sec_valid[i]), flags[i])
         for j in range(4):
             q_out[i, j] = q[j]
         for j in range(3):
@@ -254,23 +482,81 @@ def measured_error(q, q_mes, mes_valid):
 
 
 @njit(inline="always", error_model="numpy")
-def qcf_step(c, q, bias, dt, g, w_io_o, q_mes, mes_valid, mag_b, mag_o, flags):
+def qcf_step(c, q, bias, dt, g, w_io_o, q_mes, mes_valid, mag_b, mag_o):
     """One sample of the quaternion-driven filter on ``q``, ``bias`` in place: PI on the
     measured quaternion, else on the magnetometer pair alone (if its gains are not both
-    zero), else coast."""
-    if not start_sample(q, bias, dt, g, w_io_o, c.max_dt_s, flags):
-        return
+    zero), else coast. Returns its flag bits."""
+    go, f = start_sample(q, bias, dt, g, w_io_o, c.max_dt_s)
+    if not go:
+        return f
     ok_q, e = measured_error(q, q_mes, mes_valid)
     ok_m, ubm, uom = unit_pair(mag_b, mag_o)
-    flags[MAG] = 0 if ok_m else 1
-    flags[SECOND] = 0 if ok_q else 1
+    f |= (0 if ok_m else 1 << MAG) | (0 if ok_q else 1 << SECOND)
     if ok_q:
         pi_correct(q, bias, c.kp_rad_s, c.ki_rad_s2, e, dt)
     elif ok_m and (c.kp_single_rad_s > 0.0 or c.ki_single_rad_s2 > 0.0):
         e = vector_error(q, ubm, uom, 1.0, (0.0, 0.0, 0.0))
         pi_correct(q, bias, c.kp_single_rad_s, c.ki_single_rad_s2, e, dt)
     else:
-        flags[COAST] = 1
+        f |= 1 << COAST
+    return f
+
+
+@njit(inline="always", error_model="numpy")
+def qcf_row(c, mode, s, q, bias, ring, dt, g, w_io_o, q_mes, mes_valid, mag_b, mag_o):
+    """One raw sample of the quaternion-driven filter on the record ``s`` (``q``, ``bias``
+    its fields): the magnetic pair joins the tail ``ring`` (a later ``q_mes``
+    measurement's substitute; ``mode`` the substitute), then ``qcf_step``. Returns the
+    flag bits."""
+    tail_push(c, mode, s, ring, dt, g, w_io_o, mag_b, mag_o)
+    return qcf_step(c, q, bias, dt, g, w_io_o, q_mes, mes_valid, mag_b, mag_o)
+
+
+@njit(inline="always", error_model="numpy")
+def _qcf_loop(c, mode, state, ring, dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q_out,
+              bias_out, flags):
+    s = state[0]
+    q, bias = s.q, s.bias
+    for i in range(dt.shape[0]):
+        write_flags(qcf_row(c, mode, s, q, bias, ring, dt[i], gyro[i], w_io_o[i], q_mes[i],
+                            mes_valid[i], mag_b[i], mag_o[i]), flags[i])
+        for j in range(4):
+            q_out[i, j] = q[j]
+        for j in range(3):
+            bias_out[i, j] = bias[j]
+
+
+@njit(cache=True, error_model="numpy")
+def qcf_stream(c, state, ring, dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q_out,
+               bias_out, flags):
+    """The quaternion-driven filter over N raw samples (``qcf_row`` per row), continuing
+    ``state`` and its tail ``ring`` in place; arguments as ``qcf_batch``. One copy of the
+    loop per substitute (as ``ecf_stream``)."""
+    if c.substitute == DELAYED_GYRO:
+        _qcf_loop(c, DELAYED_GYRO, state, ring, dt, gyro, w_io_o, q_mes, mes_valid, mag_b,
+                  mag_o, q_out, bias_out, flags)
+    elif c.substitute == DELAYED:
+        _qcf_loop(c, DELAYED, state, ring, dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o,
+                  q_out, bias_out, flags)
+    else:
+        _qcf_loop(c, NONE, state, ring, dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o,
+                  q_out, bias_out, flags)
+
+
+@njit(cache=True, error_model="numpy")
+def qcf_sample(dt, gyro, w_io_o, q_mes, mag_b, mag_o, state, ring, c, q_out):
+    """One raw sample as a row of ``qcf_stream``: ``q_mes`` (4,) the measured q_ob (a
+    non-finite one: no measurement), the rest as ``ecf_sample``. Returns the flag bits, or
+    ``BAD_GYRO`` alone for a non-finite gyro sample (nothing done)."""
+    if not finite3(gyro):
+        return BAD_GYRO
+    s = state[0]
+    c = c[0]
+    f = qcf_row(c, c.substitute, s, s.q, s.bias, ring, dt, gyro, w_io_o, q_mes, True, mag_b,
+                mag_o)
+    for j in range(4):
+        q_out[j] = s.q[j]
+    return f
 
 
 @njit(cache=True, error_model="numpy")
@@ -287,8 +573,8 @@ def qcf_batch(c, state, dt, gyro, w_io_o, q_mes, mes_valid, mag_b, mag_o, q_out,
     s = state[0]
     q, bias = s.q, s.bias
     for i in range(dt.shape[0]):
-        qcf_step(c, q, bias, dt[i], gyro[i], w_io_o[i], q_mes[i], mes_valid[i], mag_b[i],
-                 mag_o[i], flags[i])
+        write_flags(qcf_step(c, q, bias, dt[i], gyro[i], w_io_o[i], q_mes[i], mes_valid[i],
+                             mag_b[i], mag_o[i]), flags[i])
         for j in range(4):
             q_out[i, j] = q[j]
         for j in range(3):
