@@ -21,8 +21,8 @@ from gnomon import __version__
 from gnomon.errors import InputError
 
 #: the command modules, in the order of ``gnomon --help``
-COMMANDS = ("filters", "estimate", "calibrate", "inspect", "benchmark", "bench", "simulate",
-            "campaign", "datasets", "reproduce")
+COMMANDS = ("filters", "estimate", "live", "calibrate", "inspect", "benchmark",
+            "bench", "simulate", "campaign", "datasets", "reproduce")
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 

@@ -16,10 +16,14 @@ import numpy as np
 
 from gnomon.errors import InputError
 
-__all__ = ["write_estimate"]
+__all__ = ["write_estimate", "estimate_columns", "CSV_FORMAT"]
+
+#: the number format of a CSV estimate's cells
+CSV_FORMAT = "%.10g"
 
 
-def _columns(est):
+def estimate_columns(est) -> dict:
+    """The CSV columns of ``est``: name -> (N,) float array, in the order written."""
     cols = {"t": est.t, "q_w": est.q[:, 0], "q_x": est.q[:, 1], "q_y": est.q[:, 2],
             "q_z": est.q[:, 3]}
     for name, v in est.signals.items():
@@ -38,9 +42,9 @@ def write_estimate(path, est) -> Path:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        cols = _columns(est)
+        cols = estimate_columns(est)
         data = np.column_stack(list(cols.values()))
-        np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+        np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt=CSV_FORMAT)
     elif suffix in (".h5", ".hdf5"):
         import h5py
 
