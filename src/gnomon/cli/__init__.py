@@ -21,7 +21,7 @@ from gnomon import __version__
 from gnomon.errors import InputError
 
 #: the command modules, in the order of ``gnomon --help``
-COMMANDS = ("filters", "estimate", "live", "calibrate", "inspect", "benchmark",
+COMMANDS = ("filters", "estimate", "live", "export", "calibrate", "inspect", "benchmark",
             "bench", "simulate", "campaign", "datasets", "reproduce")
 
 __all__ = ["COMMANDS", "build_parser", "main"]

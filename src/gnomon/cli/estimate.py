@@ -48,6 +48,11 @@ def add_parser(sub) -> None:
                    help="correct the magnetometer first: a calibration from `gnomon "
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
     add_phone_mag_option(s)
+    s.add_argument("--backend", default="python", choices=["python", "c"],
+                   help="c: run the filter's exported C flight code (gnomon export c), built "
+                        "once into the user cache, to check it on this log")
+    s.add_argument("--precision", default="double", choices=["double", "float"],
+                   help="with --backend c: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
     add_csv_options(s)
     s.set_defaults(func=run)
@@ -65,7 +70,12 @@ def run(args) -> int:
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
     args.filter, chosen = _estimate_filter(args.filter, args.offline, rec)
-    est = registry.create(args.filter, parse_pairs(args.param)).run(rec)
+    if args.backend == "c":  # the exported C flight code, built once into the cache
+        from gnomon.export.backend import run_c
+
+        est = run_c(args.filter, rec, args.precision, parse_pairs(args.param))
+    else:
+        est = registry.create(args.filter, parse_pairs(args.param)).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
                **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,

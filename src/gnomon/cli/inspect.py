@@ -17,9 +17,12 @@ def add_parser(sub) -> None:
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(func=run_inspect)
 
-    s = sub.add_parser("convert", help="read a log and write it as a gnomon HDF5 recording")
+    s = sub.add_parser("convert", help="read a log and write it as a gnomon HDF5 recording "
+                                       "(or a gnomon CSV)")
     s.add_argument("input", help="log file or folder")
-    s.add_argument("out", help="recording file to write (.h5)")
+    s.add_argument("out", help="recording file to write (.h5; .csv: one row per gyro sample, "
+                               "SI units and uT, the other sensors in their arrival rows, "
+                               "as an exported filter's gnomon_run reads it)")
     add_format_option(s)
     add_log_options(s)
     s.add_argument("--json", action="store_true")
@@ -63,8 +66,10 @@ def run_convert(args) -> int:
 
     rec = read(args.input, format=args.format, **log_options(args))
     write(args.out, rec)
+    csv = str(args.out).lower().endswith(".csv")
     summary = {"input": str(args.input), "out": str(args.out), "samples": len(rec),
-               "format_version": 2}
+               "format": "csv" if csv else "gnomon-recording",
+               **({} if csv else {"format_version": 2})}
     if args.json:
         print_json(summary)
     else:

@@ -287,5 +287,11 @@ def inspect(path: str | os.PathLike, format: str = "auto", **options) -> dict:
 
 
 def write(path: str | os.PathLike, rec: Recording) -> Path:
-    """Write ``rec`` to ``path`` in gnomon's HDF5 recording format; returns the path."""
+    """Write ``rec`` to ``path``: gnomon's HDF5 recording format, or for a ``.csv`` path a
+    gnomon CSV (``gnomon.io.csv.write_csv``: one row per gyro sample, the other sensors
+    in their arrival rows, the truth and the extra series as columns); returns the path."""
+    if Path(path).suffix.lower() == ".csv":
+        from gnomon.io.csv import write_csv
+
+        return write_csv(path, rec)
     return write_recording(path, rec)

@@ -57,8 +57,8 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.recording import MAG_UNITS_TO_TESLA, Recording
 
-__all__ = ["read_csv", "UnitWarning", "DEFAULT_COLUMNS", "TIME_UNITS", "GYRO_UNITS",
-           "ACCEL_UNITS", "STANDARD_GRAVITY_M_S2"]
+__all__ = ["read_csv", "write_csv", "sample_events", "UnitWarning", "DEFAULT_COLUMNS",
+           "TIME_UNITS", "GYRO_UNITS", "ACCEL_UNITS", "STANDARD_GRAVITY_M_S2"]
 
 STANDARD_GRAVITY_M_S2 = 9.80665  # m/s², exact by definition (CGPM 1901)
 
@@ -396,3 +396,113 @@ def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarra
                 f"accelerometer columns in g? Then pass accel_unit='g'.", UnitWarning,
                 stacklevel=3)
 
+
+def sample_events(rec: Recording) -> dict:
+    """Every sample of ``rec`` in time order, one row per time stamp: ``t`` (M,) s,
+    ``gyro``, ``accel``, ``mag`` (M, 3) (µT) with NaN rows where that sensor has no sample,
+    and ``gyro_row`` (M,) the index of the recording's gyro sample in that row (-1: none).
+    A row holds at most one sample of each sensor; at equal stamps the accelerometer and
+    the magnetometer come before (or with) the gyro, as ``Recording.on_time_base`` puts them
+    in the gyro's row. A single-rate recording is its own rows (M = N)."""
+    n = len(rec)
+    to_uT = MAG_UNITS_TO_TESLA[rec.mag_unit] / MAG_UNITS_TO_TESLA["uT"]
+    sensors = [("gyro", rec.gyro, rec.t, 2)]
+    for rank, name in ((0, "accel"), (1, "mag")):
+        v = getattr(rec, name)
+        if v is not None:
+            sensors.append((name, v * (to_uT if name == "mag" else 1.0), rec.times(name), rank))
+    if rec.single_rate:
+        out = {"t": rec.t, "gyro_row": np.arange(n)}
+        for name in ("gyro", "accel", "mag"):
+            v = dict((s[0], s[1]) for s in sensors).get(name)
+            out[name] = np.full((n, 3), np.nan) if v is None else np.asarray(v, float)
+        return out
+    times = np.concatenate([s[2] for s in sensors])
+    ranks = np.concatenate([np.full(len(s[2]), s[3]) for s in sensors])
+    index = np.concatenate([np.arange(len(s[2])) for s in sensors])
+    order = np.lexsort((ranks, times))
+    row = np.empty(len(order), np.int64)  # the event's output row
+    r, last_t, used = -1, None, set()
+    for j, e in enumerate(order):
+        te, rk = times[e], ranks[e]
+        if te != last_t or rk in used or 2 in used:
+            r, last_t, used = r + 1, te, set()
+        used.add(rk)
+        row[j] = r
+    m = r + 1
+    out = {"t": np.empty(m), "gyro_row": np.full(m, -1, np.int64)}
+    for name in ("gyro", "accel", "mag"):
+        out[name] = np.full((m, 3), np.nan)
+    out["t"][row] = times[order]
+    for name, v, _, rank in sensors:
+        pick = ranks[order] == rank
+        out[name][row[pick]] = np.asarray(v, float)[index[order][pick]]
+        if name == "gyro":
+            out["gyro_row"][row[pick]] = index[order][pick]
+    return out
+
+
+def write_csv(path: str | os.PathLike, rec: Recording) -> Path:
+    """Write ``rec`` as a gnomon CSV, the input of an exported filter's ``gnomon_run``
+    (and, for an IMU recording, of :func:`read_csv`, which reads it back sample for
+    sample; the other columns it ignores): ``t,gyr_x..z[,acc_x..z][,mag_x..z]`` in s, rad/s,
+    m/s² and µT, one row per time stamp (:func:`sample_events`: a single-rate recording's
+    rows; each sensor at its own rate in the rows of its own stamps, empty cells where it
+    has no sample); then, in the gyro's rows, the truth ``q_w..q_z`` and ``mask`` when
+    present, the sun sensors' ``sun_x..z`` (b) and ``sun_valid`` when present, and every
+    ``extra`` series of one value or one vector per gyro sample (``NAME`` or ``NAME_x,
+    NAME_y, NAME_z``, ``NAME_0 ..`` for other widths; booleans as 0/1, NaN as an empty
+    cell). Numbers with 17 significant digits: a write and a read give back the same
+    floats. A spacecraft recording has no accelerometer: its CSV is for ``gnomon_run``
+    (``read_csv`` needs one)."""
+    path = Path(path)
+    n = len(rec)
+    ev = sample_events(rec)
+    at_gyro = ev["gyro_row"]
+    has_gyro = at_gyro >= 0
+
+    def on_rows(v):  # a per-gyro-sample series in the event rows (NaN elsewhere)
+        v = np.asarray(v, float)
+        out = np.full((len(at_gyro), *v.shape[1:]), np.nan)
+        out[has_gyro] = v[at_gyro[has_gyro]]
+        return out
+
+    cols: dict[str, np.ndarray] = {"t": ev["t"]}
+    for sensor, names in SENSOR_GROUPS.items():
+        if getattr(rec, sensor) is None:
+            continue
+        for j, name in enumerate(names):
+            cols[name] = ev[sensor][:, j]
+    if rec.q_true is not None:
+        q = on_rows(rec.q_true)
+        for j, name in enumerate(TRUTH_COLUMNS):
+            cols[name] = q[:, j]
+    if rec.mask is not None:
+        cols["mask"] = on_rows(rec.mask)
+    if rec.sun is not None:  # the sun sensors' direction (b) and validity
+        sun = on_rows(rec.sun)
+        for j, name in enumerate(("sun_x", "sun_y", "sun_z")):
+            cols[name] = sun[:, j]
+        if rec.sun_valid is not None:
+            cols["sun_valid"] = on_rows(np.asarray(rec.sun_valid, bool))
+    flags = {"mask", "sun_valid"}  # written as 0/1
+    for name, v in sorted(rec.extra.items()):
+        v = np.asarray(v)
+        if v.shape[:1] != (n,) or v.dtype.kind not in "fiub" or v.ndim > 2:
+            continue
+        if v.dtype.kind == "b" and v.ndim == 1:
+            flags.add(name)
+        v = on_rows(v)
+        if v.ndim == 1:
+            cols[name] = v
+        else:
+            labels = "xyz" if v.shape[1] == 3 else [str(i) for i in range(v.shape[1])]
+            for j, lab in enumerate(labels):
+                cols[f"{name}_{lab}"] = v[:, j]
+    cells = [[("" if x != x else str(int(x))) for x in v] if name in flags
+             else [("" if x != x else repr(float(x))) for x in v] for name, v in cols.items()]
+    with open(path, "w", newline="") as fh:
+        fh.write(",".join(cols) + "\n")
+        for row in zip(*cells, strict=True):
+            fh.write(",".join(row) + "\n")
+    return path

@@ -58,6 +58,22 @@ def _ratio(a, b):
     return a / b if b else math.nan
 
 
+def _c_ops(r: dict, phase: str) -> str:
+    """Paper 002's C flight code: a phase's counted operations, r = 6 → r = 3, as
+    "mul+div/add → mul+div/add" text."""
+    c = r["c_flight_code"]
+    return " → ".join(f"{c[k]['ops'][phase]['mul']:g}/{c[k]['ops'][phase]['add']:g}"
+                      for k in ("r6", "r3"))
+
+
+def _c_ops_are_traced(r: dict) -> bool:
+    """The C's counted gain and update are the Python kernel's traced operations."""
+    c = r["c_flight_code"]
+    return all(c[k]["ops"][ph]["mul"] == c["python_traced"][k][ph]["mul_div"]
+               and c[k]["ops"][ph]["add"] == c["python_traced"][k][ph]["add"]
+               for k in ("r6", "r3") for ph in ("gain", "kalman_update"))
+
+
 SUMMARY = {
     "000": "A microsatellite estimates its attitude from a magnetometer, a sun sensor and MEMS "
            "gyros with complementary filters: Mahony's explicit filter on vector pairs versus a "
@@ -175,6 +191,15 @@ CHECKS: dict[str, list[Check]] = {
             _get(r, "time_per_step_ns", "r6"), _get(r, "time_per_step_ns", "r3")), ">= 1.4",
             lambda r: _get(r, "time_per_step_ns", "r6")
             >= 1.4 * _get(r, "time_per_step_ns", "r3"), ""),
+        Check("C flight code: gain operations (mul+div/add, counted), r = 6 → r = 3",
+              "864/792 → 243/207", lambda r: _c_ops(r, "gain"),
+              "= the Python kernel's (traced)", _c_ops_are_traced, ""),
+        Check("C flight code: measurement update operations (gain + Joseph), r = 6 → r = 3",
+              "—", lambda r: _c_ops(r, "kalman_update"), "= the Python kernel's (traced)",
+              _c_ops_are_traced, ""),
+        Check("C flight code: measurement update time r = 6 / r = 3", "3.6 (op counts)",
+              lambda r: _get(r, "c_flight_code", "ratio_r6_r3", "kalman_update_ns"), ">= 1.8",
+              lambda r: _get(r, "c_flight_code", "ratio_r6_r3", "kalman_update_ns") >= 1.8, ""),
     ],
     "003": [
         Check("per-frame max pitch error (angle-resampled)", "—", lambda r: _get(

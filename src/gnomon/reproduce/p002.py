@@ -11,11 +11,15 @@ and how they are checked here:
 * "the same information at lower cost": both filters on identical simulated
   MEMS data (``gnomon.simulation.ahrs``), attitude and bias RMS, as a function
   of the accelerometer noise, and on the real BROAD trials;
-* measured time per step and per update of the compiled batch kernel.
+* measured time per step and per update of the compiled batch kernel;
+* the same comparison in C (``c_flight_code_cost``): both filters exported as flight code
+  (``gnomon export c``), their measurement update timed (ns) and counted (operations) on
+  this machine, beside the paper's 864/792 -> 243/207.
 
 ``run`` returns the issue's JSON contract (plus extra keys) and, with
 ``out_dir``, writes ``metrics.json`` and the figures ``p002_attitude.png``,
-``p002_bias.png``, ``p002_cost_accuracy.png``.
+``p002_bias.png``, ``p002_cost_accuracy.png`` (and ``p002_c_cost.png`` when a C compiler
+was there).
 """
 
 from __future__ import annotations
@@ -249,6 +253,8 @@ def run(out_dir: Path | None = None, quick: bool = False, progress: bool = False
     res.update(accuracy_with_disturbances(seeds, duration))
     say("timing")
     res.update(time_per_step(quick))
+    say("C flight code: the measurement update timed and counted")
+    res.update(c_flight_code_cost(quick))
     res.update(broad_real_data(say))
     if out_dir is not None:
         import json
@@ -350,6 +356,92 @@ def time_per_step(quick: bool) -> dict:
     }
 
 
+def c_flight_code_cost(quick: bool = False) -> dict:
+    """Seed 002 in C: ``eskf-r6`` and ``eskf-r3`` exported as flight code (``gnomon export
+    c``, double precision), built with the strict flags, and their phases measured on the
+    bundled BROAD excerpt (every row has both sensors: a full correction):
+    ``gnomon_run --phases`` times them (ns, the fastest of many passes over up to 1024
+    captured rows, each phase alone on the states the filter had there) and
+    ``gnomon_count --phases`` counts their operations (the same source as C++ on a
+    counting number type; ``gn_ops`` read around each call of a phase).
+
+    Phases: ``gain`` (the Kalman gain alone, the paper's unit: counted; its time
+    ``gain_loops`` is of the loop form, which the filter does not run for its full
+    measurement), ``kalman_update`` (gain + Joseph covariance + ``dx``: the straight-line
+    function the filter runs, the measurement update whose size r decides),
+    ``measurement_update`` (the whole row after the prediction: gates, inclination,
+    low-pass, measurement model, Kalman update, injection), ``predict``. Operations:
+    ``mul`` = multiplications + divisions (the paper's M), ``add`` = additions and
+    subtractions (its A). ``quick``: no whole-row ``--bench``. Without ``cc``, ``c++`` and
+    ``make``: ``{"c_flight_code": {"skipped": why}}``."""
+    import platform
+    import shutil
+    import subprocess
+    import tempfile
+
+    from gnomon.errors import InputError
+
+    if shutil.which("cc") is None or shutil.which("make") is None or shutil.which("c++") is None:
+        return {"c_flight_code": {"skipped": "no C and C++ compiler (cc, c++) or make on "
+                                             "this machine: the C export was not measured"}}
+    from gnomon.export import export_c
+    from gnomon.export.cost import bench_recording, make
+    from gnomon.io import write
+
+    rec = bench_recording("imu")
+    res: dict = {"recording": rec.source or "BROAD excerpt", "rows": len(rec),
+                 "precision": "double", "machine": platform.machine(),
+                 "compiler": subprocess.run(["cc", "--version"], capture_output=True,
+                                            text=True).stdout.splitlines()[0]}
+    try:
+        with tempfile.TemporaryDirectory(prefix="gnomon-p002-c-") as tmp:
+            csv = write(Path(tmp) / "rec.csv", rec)
+            for r in (6, 3):
+                out = Path(tmp) / f"eskf-r{r}"
+                export_c(f"eskf-r{r}", out, "double")
+                make(out)
+                make(out, "count")
+                ns = _run_c_json(out / "gnomon_run", csv, "--phases")
+                ops = _run_c_json(out / "gnomon_count", csv, "--phases")["ops"]
+                row = {"ns": ns["ns"], "updates": ns["updates"], "timed": ns["timed"],
+                       "ops": {k: {"mul": round(v["mul"] + v["div"], 2), "add": v["add"],
+                                   "total": v["total"]} for k, v in ops.items()}}
+                if not quick:
+                    bench = _run_c_json(out / "gnomon_run", csv, "--bench")
+                    row["ns_per_row"] = bench["ns_per_update"]
+                    row["state_bytes"] = bench["state_bytes"]
+                res[f"r{r}"] = row
+    except (InputError, OSError, KeyError, ValueError) as err:
+        return {"c_flight_code": {"skipped": f"the C export failed: {err}"}}
+    paper = {f"r{r}": paper_gain_operations(6, r) for r in (6, 3)}
+    res["paper_gain"] = paper
+    res["python_traced"] = {f"r{r}": {"gain": count_gain_operations(r),
+                                      "kalman_update": count_update_operations(r)}
+                            for r in (6, 3)}
+    r6, r3 = res["r6"], res["r3"]
+    res["ratio_r6_r3"] = {
+        "paper_mul": paper["r6"]["mul"] / paper["r3"]["mul"],
+        "paper_add": paper["r6"]["add"] / paper["r3"]["add"],
+        **{f"{ph}_{kind}": r6["ops"][ph][kind] / r3["ops"][ph][kind]
+           for ph in ("gain", "kalman_update", "measurement_update") for kind in ("mul", "add")},
+        **{f"{ph}_ns": r6["ns"][ph] / r3["ns"][ph]
+           for ph in ("kalman_update", "measurement_update")},
+    }
+    return {"c_flight_code": res}
+
+
+def _run_c_json(exe: Path, csv: Path, *args: str) -> dict:
+    """``exe ARGS < csv``'s JSON (gnomon_run, gnomon_count)."""
+    import json
+    import subprocess
+
+    with open(csv) as fh:
+        p = subprocess.run([str(exe), *args], stdin=fh, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise ValueError(f"{exe.name} {' '.join(args)}: {p.stderr.strip()}")
+    return json.loads(p.stdout)
+
+
 def broad_real_data(say) -> dict:
     """Both filters on the real BROAD trials (or the shipped excerpts): the mean total
     RMSE and each trial's."""
@@ -439,4 +531,44 @@ def _figures(out: Path, res: dict, rec, ests) -> None:
     a2.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(out / "p002_cost_accuracy.png", dpi=110)
+    plt.close(fig)
+    c = res.get("c_flight_code", {})
+    if "r6" in c and "r3" in c:
+        _figure_c_cost(out, c, plt)
+
+
+def _figure_c_cost(out: Path, c: dict, plt) -> None:
+    """``p002_c_cost.png``: the C flight code's measurement update, r = 6 against r = 3, in
+    counted operations beside the paper's gain counts and in ns on this machine."""
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    x = np.arange(2)
+    groups = [("paper: gain M", [c["paper_gain"][k]["mul"] for k in ("r6", "r3")]),
+              ("paper: gain A", [c["paper_gain"][k]["add"] for k in ("r6", "r3")])]
+    for ph, label in (("gain", "gain"), ("kalman_update", "gain + Joseph"),
+                      ("measurement_update", "whole correction")):
+        groups.append((f"C: {label}, mul+div", [c[k]["ops"][ph]["mul"] for k in ("r6", "r3")]))
+        groups.append((f"C: {label}, add", [c[k]["ops"][ph]["add"] for k in ("r6", "r3")]))
+    w = 0.8 / len(groups)
+    for i, (label, vals) in enumerate(groups):
+        a1.bar(x + (i - len(groups) / 2 + 0.5) * w, vals, w, label=label,
+               hatch="//" if label.startswith("paper") else None)
+    a1.set_xticks(x, ["r = 6", "r = 3"])
+    a1.set_ylabel("operations per update (counted)")
+    a1.set_title("measurement update: operations")
+    a1.legend(fontsize=7)
+    a1.grid(alpha=0.3, axis="y")
+    phases = [("kalman_update", "gain + Joseph"), ("measurement_update", "whole correction"),
+              ("predict", "prediction (gyro)")]
+    w = 0.8 / len(phases)
+    for i, (ph, label) in enumerate(phases):
+        vals = [c[k]["ns"][ph] for k in ("r6", "r3")]
+        bars = a2.bar(x + (i - len(phases) / 2 + 0.5) * w, vals, w, label=label)
+        a2.bar_label(bars, fmt="%.0f", fontsize=7)
+    a2.set_xticks(x, ["r = 6", "r = 3"])
+    a2.set_ylabel(f"ns per update ({c['machine']}, {c['precision']})")
+    a2.set_title("measurement update: time (C flight code)")
+    a2.legend(fontsize=7)
+    a2.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    fig.savefig(out / "p002_c_cost.png", dpi=110)
     plt.close(fig)

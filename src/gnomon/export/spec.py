@@ -1,0 +1,31 @@
+"""What an exported filter's C twin is made of (``FilterSpec``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["FilterSpec"]
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """What a filter's C twin is made of (files in ``gnomon/export/c``).
+
+    ``params``: the C parameter struct's fields in order, each a ``Params`` field name of
+    the filter or a name that ``values(params)`` computes (a derived value);
+    ``runner``: the runner's source (``runner_imu.c`` for the IMU filters); ``adapter``:
+    its ``runner_adapter.h``; ``defines``: lines for ``gnomon_config.h``; ``phases``: the
+    adapter defines ``GN_ADAPTER_PHASES`` (``gnomon_run --phases``: ns and operations per
+    phase of the step, into ``cost.json``)."""
+
+    filter: str
+    prefix: str
+    sources: tuple[str, ...]
+    headers: tuple[str, ...]
+    adapter: str
+    runner: str = "runner_imu.c"
+    defines: tuple[str, ...] = ()
+    params: tuple[str, ...] = ()
+    values: object = None  # callable(params) -> {c field: value} for computed fields
+    kind: str = "imu"
+    phases: bool = False
