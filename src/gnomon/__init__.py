@@ -15,6 +15,10 @@ stays fast)::
     sim = gnomon.simulate(sc)                          # a Recording with truth
     res = gnomon.run_campaign(sc, runs=100, out_dir="mc")
 
+    f = gnomon.make_filter("mahony"); q = f.update(dt, gyro, accel, mag)  # live, compiled
+    live = gnomon.LiveFilter(f); live.push("gyro", t, w)  # sensors as they arrive
+    gnomon.calibrate_mag(rec); gnomon.export_c("mahony", "fw/")  # calibration, C code
+
 Conventions: ``docs/conventions.md`` (Hamilton quaternions ``[w, x, y, z]``, ``q_ab``
 maps b- to a-coordinates, SI units inside).
 """
@@ -44,6 +48,13 @@ _EXPORTS = {
     "simulate": "gnomon.scenarios:simulate",
     "run_campaign": "gnomon.campaign:run_campaign",
     "read_results": "gnomon.campaign:read_results",
+    "calibrate_mag": "gnomon.calibration:calibrate_mag",
+    "apply_mag_calibration": "gnomon.calibration:apply_mag_calibration",
+    "LiveFilter": "gnomon.live.stream:LiveFilter",
+    "run_live": "gnomon.live.runner:run_live",
+    "open_source": "gnomon.live.sources:open_source",
+    "export_c": "gnomon.export:export_c",
+    "run_benchmark": "gnomon.benchmark:run",
 }
 
 __all__ = ["__version__", *_EXPORTS]
