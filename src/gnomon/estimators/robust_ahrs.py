@@ -26,7 +26,16 @@ n = ENU. The estimate is
   rate is within ``bias_clip_deg_s``. A steady rate farther than ``rest_th_rate_deg_s``
   from the bias estimate (measured on the bias-corrected rate, so a large but estimated
   bias does not prevent a rest) is either a large bias not yet estimated or a slow
-  rotation: it counts as rest only after ``rest_min_large_bias_s``.
+  rotation: it counts as rest only after ``rest_min_large_bias_s``, and only when the
+  gyro (minus the bias) says the accelerometer or the magnetometer direction would have
+  turned by at least twice ``rest_th_turn_deg`` in the body frame meanwhile. A rest
+  ends, and a rest candidacy begins anew, whenever the low-passed accelerometer or
+  magnetometer direction turns by more than ``rest_th_turn_deg`` from where it was when
+  the candidacy began: a steady turn (a turntable, a drone yawing, a car on a
+  roundabout) has a constant gyro and, about the vertical, a constant accelerometer,
+  but its magnetometer turns, so it is not rest and the bias does not absorb its rate
+  (``tests/test_steady_turn.py``). A turn about the field and gravity both (no
+  magnetometer sample, a turn about the vertical) cannot be told from a bias: no rest.
 * **Gyro bias** (3-state Kalman filter, rad/s): at rest the measurement is the
   low-passed gyro (``H = I``, std ``bias_sigma_rest_deg_s``); in motion
   (``motion_bias``) the inclination correction is the measurement of the
@@ -193,7 +202,14 @@ class RobustAHRSParams(Params):
                                       "this from the bias estimate (a large bias not yet "
                                       "estimated, or a slow rotation) needs "
                                       "rest_min_large_bias_s to count as rest")
-    rest_min_large_bias_s: float = param(5.0, "s", "minimum duration of such a rest phase")
+    rest_min_large_bias_s: float = param(5.0, "s", "minimum duration of such a rest phase, "
+                                         "which counts only when the gyro says the "
+                                         "accelerometer or magnetometer would have turned by "
+                                         "at least twice rest_th_turn_deg meanwhile")
+    rest_th_turn_deg: float = param(2.0, "deg", "a rest ends (and does not begin) when the "
+                                    "low-passed accelerometer or magnetometer direction turns "
+                                    "by more than this in the body frame: a steady turn is "
+                                    "not rest (0: off)")
     rest_th_acc_m_s2: float = param(0.5, "m/s^2", "rest threshold on the accelerometer "
                                     "deviation")
     mag_current_tau_s: float = param(0.05, "s", "low-pass of the field's norm and dip")
@@ -235,7 +251,7 @@ class RobustAHRSParams(Params):
                      "max_dt_s", "mag_reject_factor", "bias_vertical_forgetting"):
             self._require(name, getattr(self, name) > 0, "must be > 0")
         for name in ("tau_mag_s", "heading_bias_ref_deg_s", "rest_min_s", "rest_th_gyro_deg_s",
-                     "rest_th_rate_deg_s", "rest_min_large_bias_s",
+                     "rest_th_rate_deg_s", "rest_min_large_bias_s", "rest_th_turn_deg",
                      "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s", "mag_norm_th",
                      "mag_dip_th_deg", "mag_new_s", "mag_new_first_s", "mag_soft_norm",
                      "mag_soft_dip_deg",
@@ -291,19 +307,72 @@ def _strapdown(s, dt, g):
             s.q_gyr = _normalise(quat_mul(s.q_gyr, quat_from_rotvec(r)))
 
 
+def _chord2(u, v) -> float:
+    """Squared distance between the directions of two non-zero 3-vectors."""
+    d = u / np.linalg.norm(u) - v / np.linalg.norm(v)
+    return float(d @ d)
+
+
+def _rest_begin(s, a_lp):
+    """A rest candidacy begins: keep the low-passed accelerometer (unit) and magnetometer
+    and start the gyro's rotation ``rest_q`` at the identity."""
+    s.rest_a0 = a_lp / np.linalg.norm(a_lp)
+    s.rest_m0 = s.mag_body_lp
+    s.rest_m0_ok = s.mag_body_ok
+    s.rest_q = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _rest_turn(s, dt, g):
+    """During a candidacy: ``rest_q <- rest_q ⊗ exp((g - b) dt)`` (body then <- body now)."""
+    if s.rest_t > 0.0 and dt > 0.0:
+        s.rest_q = _normalise(quat_mul(s.rest_q, quat_from_rotvec((g - s.bias) * dt)))
+
+
+def _gyro_says_turned(s, c) -> bool:
+    """The gyro's rotation since the candidacy began would have turned the accelerometer's
+    or the magnetometer's (hard-iron offset removed) direction by twice ``rest_th_turn``."""
+    Rt = dcm_from_quat(s.rest_q).T  # body then -> body now
+    big = 4.0 * c.rest_th_turn2
+    if _chord2(Rt @ s.rest_a0, s.rest_a0) >= big:
+        return True
+    m = s.rest_m0 - s.hard_iron.o
+    return bool(s.rest_m0_ok and m @ m > 0.0 and _chord2(Rt @ m, m) >= big)
+
+
 def _rest_acc(s, c, a):
     """Rest detection, accelerometer part: rest after ``rest_min_s`` within the threshold
-    of the low-passed specific force ``a`` (m/s²); after ``rest_min_large_s`` when the
-    low-passed rate is farther than ``rest_th_rate`` from the bias estimate."""
-    dev = a - _lowpass(s.rest_acc_lp, a, c.rest_acc_lp)
+    of the low-passed specific force ``a`` (m/s²) while its direction stays within
+    ``rest_th_turn`` of the candidacy's first (else a new candidacy); after
+    ``rest_min_large_s``, and only if the gyro says the accelerometer or magnetometer
+    would have turned by twice that, when the low-passed rate is farther than
+    ``rest_th_rate`` from the bias estimate."""
+    a_lp = _lowpass(s.rest_acc_lp, a, c.rest_acc_lp)
+    dev = a - a_lp
     if dev @ dev >= c.rest_th_acc2:
         s.rest_t, s.rest = 0.0, False
-    else:
-        s.rest_t += c.ts_acc_s
-        far = np.max(np.abs(s.gyro_lp - s.bias))
-        if s.rest_t >= c.rest_min_s and not s.rest and (
-                far <= c.rest_th_rate or s.rest_t >= c.rest_min_large_s):
-            s.rest = True
+        return
+    if s.rest_t == 0.0:
+        _rest_begin(s, a_lp)
+    elif c.rest_th_turn2 > 0.0 and _chord2(a_lp, s.rest_a0) >= c.rest_th_turn2:
+        s.rest_t, s.rest = 0.0, False
+        _rest_begin(s, a_lp)
+    s.rest_t += c.ts_acc_s
+    far = np.max(np.abs(s.gyro_lp - s.bias))
+    if s.rest_t >= c.rest_min_s and not s.rest and (far <= c.rest_th_rate or (
+            s.rest_t >= c.rest_min_large_s and (c.rest_th_turn2 == 0.0
+                                                or _gyro_says_turned(s, c)))):
+        s.rest = True
+
+
+def _rest_mag(s, c, m):
+    """Rest detection, magnetometer part: low-pass the field in the body frame; a direction
+    farther than ``rest_th_turn`` from the candidacy's first ends the rest and the
+    candidacy."""
+    s.mag_body_lp = m_lp = _lowpass(s.rest_mag_lp, m, c.rest_mag_lp)
+    s.mag_body_ok = True
+    if (s.rest_t > 0.0 and s.rest_m0_ok and c.rest_th_turn2 > 0.0
+            and _chord2(m_lp, s.rest_m0) >= c.rest_th_turn2):
+        s.rest_t, s.rest = 0.0, False
 
 
 def _inclination(s, c, a):
@@ -625,6 +694,8 @@ class RobustAHRS(CompiledIMUUpdate, Estimator):
         if c.rest_bias or c.mag_rejection:
             _rest_gyro(s, c, g)
         _strapdown(s, dt_s, g)
+        if c.rest_bias:
+            _rest_turn(s, dt_s, g)
         if dt_s > c.max_dt_s:
             flags = GAP
         else:
@@ -633,6 +704,8 @@ class RobustAHRS(CompiledIMUUpdate, Estimator):
                     _rest_acc(s, c, a)
                 _bias_kf(s, c, _inclination(s, c, a))
             if m is not None:
+                if c.rest_bias:
+                    _rest_mag(s, c, m)
                 _magnetometer(s, c, m)
         self._flags = flags | (BIAS_AT_LIMIT if s.bias_at_limit else 0)
         return self.q

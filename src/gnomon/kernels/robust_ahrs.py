@@ -168,23 +168,103 @@ def rest_gyro(s, c, gx, gy, gz):
 
 
 @njit(inline="always")
+def _chord2(ax, ay, az, bx, by, bz):
+    """Squared distance between the directions of two non-zero 3-vectors."""
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bx * bx + by * by + bz * bz)
+    dx, dy, dz = ax / na - bx / nb, ay / na - by / nb, az / na - bz / nb
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(inline="always")
+def rest_begin(s, lx, ly, lz):
+    """A rest candidacy begins at this accelerometer sample: keep the low-passed
+    accelerometer ``l`` and magnetometer directions and start the gyro's rotation."""
+    n = math.sqrt(lx * lx + ly * ly + lz * lz)
+    s.rest_a0[0], s.rest_a0[1], s.rest_a0[2] = lx / n, ly / n, lz / n
+    m = s.mag_body_lp
+    s.rest_m0[0], s.rest_m0[1], s.rest_m0[2] = m[0], m[1], m[2]
+    s.rest_m0_ok = s.mag_body_ok
+    q = s.rest_q
+    q[0], q[1], q[2], q[3] = 1.0, 0.0, 0.0, 0.0
+
+
+@njit(inline="always")
+def rest_turn(s, dt, gx, gy, gz):
+    """During a rest candidacy, ``rest_q <- rest_q ⊗ exp((ω - b) dt)``: the rotation the
+    gyro (minus the bias estimate) says the body made since it began."""
+    if s.rest_t > 0.0 and dt > 0.0:
+        q = s.rest_q
+        q[0], q[1], q[2], q[3], _ = quat.exp_mul(
+            q[0], q[1], q[2], q[3], (gx - s.bias[0]) * dt, (gy - s.bias[1]) * dt,
+            (gz - s.bias[2]) * dt, True, True)
+
+
+@njit(inline="always")
+def gyro_says_turned(s, c):
+    """Whether the gyro's rotation since the candidacy began (``rest_q``) would have turned
+    the accelerometer's direction, or the magnetometer's (its hard-iron offset removed), by
+    at least twice ``rest_th_turn`` (squared chords compared)."""
+    q, a = s.rest_q, s.rest_a0
+    px, py, pz = quat.rotate_inv(q[0], q[1], q[2], q[3], a[0], a[1], a[2])
+    big = 4.0 * c.rest_th_turn2
+    if _chord2(px, py, pz, a[0], a[1], a[2]) >= big:
+        return True
+    if s.rest_m0_ok:
+        o = s.hard_iron.o
+        mx, my, mz = s.rest_m0[0] - o[0], s.rest_m0[1] - o[1], s.rest_m0[2] - o[2]
+        if mx * mx + my * my + mz * mz > 0.0:
+            px, py, pz = quat.rotate_inv(q[0], q[1], q[2], q[3], mx, my, mz)
+            return _chord2(px, py, pz, mx, my, mz) >= big
+    return False
+
+
+@njit(inline="always")
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
-    threshold of the low-passed specific force, or after ``rest_min_large_s`` when the
-    low-passed rate is farther than ``rest_th_rate`` from the bias estimate (a steady rate
-    that is a large bias not yet estimated, or a slow rotation)."""
+    threshold of the low-passed specific force while its direction stays within
+    ``rest_th_turn`` of where it was when the candidacy began (a larger turn begins a new
+    one). A low-passed rate farther than ``rest_th_rate`` from the bias estimate (a large
+    bias not yet estimated, or a slow rotation) counts as rest only after
+    ``rest_min_large_s``, and only when the gyro says the accelerometer or magnetometer
+    would have turned by twice ``rest_th_turn`` meanwhile: they did not, so the rate is a
+    bias. A turn about the field and gravity both cannot be told from a bias: no rest."""
     lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_acc_lp)
     dx, dy, dz = ax - lx, ay - ly, az - lz
     if dx * dx + dy * dy + dz * dz >= c.rest_th_acc2:
         s.rest_t = 0.0
         s.rest = False
-    else:
-        s.rest_t += c.ts_acc_s
-        if s.rest_t >= c.rest_min_s and not s.rest:
-            g, b = s.gyro_lp, s.bias
-            far = max(abs(g[0] - b[0]), max(abs(g[1] - b[1]), abs(g[2] - b[2])))
-            if far <= c.rest_th_rate or s.rest_t >= c.rest_min_large_s:
-                s.rest = True
+        return
+    if s.rest_t == 0.0:
+        rest_begin(s, lx, ly, lz)
+    elif c.rest_th_turn2 > 0.0 and _chord2(lx, ly, lz, s.rest_a0[0], s.rest_a0[1],
+                                           s.rest_a0[2]) >= c.rest_th_turn2:
+        s.rest = False  # the direction turned: not rest, a new candidacy from here
+        s.rest_t = 0.0
+        rest_begin(s, lx, ly, lz)
+    s.rest_t += c.ts_acc_s
+    if s.rest_t >= c.rest_min_s and not s.rest:
+        g, b = s.gyro_lp, s.bias
+        far = max(abs(g[0] - b[0]), max(abs(g[1] - b[1]), abs(g[2] - b[2])))
+        if far <= c.rest_th_rate or (s.rest_t >= c.rest_min_large_s and (
+                c.rest_th_turn2 == 0.0 or gyro_says_turned(s, c))):
+            s.rest = True
+
+
+@njit(inline="always")
+def rest_mag(s, c, mx, my, mz):
+    """Magnetometer part of the rest detection: low-pass the field in the body frame; a
+    direction farther than ``rest_th_turn`` from the one the candidacy began with ends
+    the rest and the candidacy (the next accelerometer sample begins a new one)."""
+    lx, ly, lz = lowpass3(s.rest_mag_lp, mx, my, mz, c.rest_mag_lp)
+    m = s.mag_body_lp
+    m[0], m[1], m[2] = lx, ly, lz
+    s.mag_body_ok = True
+    if s.rest_t > 0.0 and s.rest_m0_ok and c.rest_th_turn2 > 0.0:
+        m0 = s.rest_m0
+        if _chord2(lx, ly, lz, m0[0], m0[1], m0[2]) >= c.rest_th_turn2:
+            s.rest_t = 0.0
+            s.rest = False
 
 
 # ---------------------------------------------------------------- 2. strapdown
@@ -518,6 +598,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     if c.rest_bias or c.mag_rejection:
         rest_gyro(s, c, gx, gy, gz)
     strapdown(s, dt, gx, gy, gz)
+    if c.rest_bias:
+        rest_turn(s, dt, gx, gy, gz)
     qa, qg = s.q_acc, s.q_gyr
     if dt > c.max_dt_s:
         return GAP, quat.mul(qa[0], qa[1], qa[2], qa[3], qg[0], qg[1], qg[2], qg[3])
@@ -534,6 +616,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
         q6 = quat.mul(qa[0], qa[1], qa[2], qa[3], qg[0], qg[1], qg[2], qg[3])
         R = quat.dcm(q6[0], q6[1], q6[2], q6[3])
     if mx * mx + my * my + mz * mz > 0.0:
+        if c.rest_bias:
+            rest_mag(s, c, mx, my, mz)
         magnetometer(s, c, R, mx, my, mz)
     else:
         flags |= MAG_SKIPPED

@@ -51,6 +51,8 @@ class Coefficients(NamedTuple):
     rest_min_s: float
     rest_th_rate: float  # rad/s, on |lp(ω) - b| (inf-norm): beyond it a rest needs rest_min_large_s
     rest_min_large_s: float
+    rest_mag_lp: LowPass  # the magnetometer in the body frame (its own sample time)
+    rest_th_turn2: float  # squared chord of rest_th_turn_deg between unit vectors (0: off)
     # inclination
     acc_lp: LowPass  # the accelerometer in frame I
     # gyro-bias Kalman filter, run on every bias_every-th accelerometer sample
@@ -149,6 +151,8 @@ def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
         rest_th_gyro2=(p.rest_th_gyro_deg_s * d2r) ** 2, rest_th_acc2=p.rest_th_acc_m_s2 ** 2,
         rest_min_s=float(p.rest_min_s), rest_th_rate=p.rest_th_rate_deg_s * d2r,
         rest_min_large_s=float(p.rest_min_large_bias_s),
+        rest_mag_lp=_lowpass(p.rest_tau_s, ts_m),
+        rest_th_turn2=(2.0 * math.sin(0.5 * p.rest_th_turn_deg * d2r)) ** 2,
         acc_lp=_lowpass(p.tau_acc_s, ts_acc),
         motion_bias=bool(p.motion_bias), bias_every=int(p.bias_every),
         bias_lp=_lowpass(p.tau_acc_s, ts_b),
@@ -217,8 +221,15 @@ STATE = np.dtype([
     ("gyro_lp", np.float64, (3,)),  # rad/s: its output (the rest-phase bias measurement)
     ("rest_acc_lp", LOWPASS_3),
     ("rest_t", np.float64),  # s spent within the thresholds
+    ("rest_mag_lp", LOWPASS_3),  # the magnetometer, body frame
+    ("mag_body_lp", np.float64, (3,)),  # its output
+    ("rest_a0", np.float64, (3,)),  # unit low-passed accelerometer when the candidacy began
+    ("rest_m0", np.float64, (3,)),  # the low-passed magnetometer then (raw)
+    ("rest_q", np.float64, (4,)),  # body then <- body now: the gyro (minus bias) since
     ("rest", np.bool_),
     ("bias_at_limit", np.bool_),  # a component of the bias at ±bias_clip (in the padding)
+    ("mag_body_ok", np.bool_),  # mag_body_lp holds a sample
+    ("rest_m0_ok", np.bool_),  # rest_m0 was taken
     # inclination and bias in motion
     ("acc_lp", LOWPASS_3),  # m/s², frame I
     ("acc_rate", np.float64),  # rad/s: sine of the last correction angle / ts
@@ -252,6 +263,7 @@ def new_state(p) -> np.ndarray:
     s = state[0]
     s["q_gyr"][0] = 1.0
     s["q_acc"][0] = 1.0
+    s["rest_q"][0] = 1.0
     s["cos_half_delta"] = 1.0
     s["P"] = np.eye(3) * (p.bias_sigma_init_deg_s * math.pi / 180.0) ** 2
     s["mag_disturbed"] = True

@@ -89,6 +89,9 @@ void gnomon_robust_ahrs_coefficients_from(gnomon_robust_ahrs_coefficients *c,
     c->rest_min_s = p->rest_min_s;
     c->rest_th_rate = p->rest_th_rate_deg_s * d2r;
     c->rest_min_large_s = p->rest_min_large_bias_s;
+    lowpass_coefficients(&c->rest_mag_lp, p->rest_tau_s, ts_m);
+    x = R(2.0) * GN_SIN(R(0.5) * p->rest_th_turn_deg * d2r);
+    c->rest_th_turn2 = x * x;
     lowpass_coefficients(&c->acc_lp, p->tau_acc_s, ts_acc);
     c->motion_bias = p->motion_bias;
     c->bias_every = p->bias_every;
@@ -170,8 +173,18 @@ void gnomon_robust_ahrs_reset(gnomon_robust_ahrs_state *s, const gnomon_robust_a
     zero_lp(s->rest_acc_lp.z1, 3);
     s->rest_acc_lp.n = 0;
     s->rest_t = R(0.0);
+    zero_lp(s->rest_mag_lp.z0, 3);
+    zero_lp(s->rest_mag_lp.z1, 3);
+    s->rest_mag_lp.n = 0;
+    zero(s->mag_body_lp, 3);
+    zero(s->rest_a0, 3);
+    zero(s->rest_m0, 3);
+    zero(s->rest_q, 4);
+    s->rest_q[0] = R(1.0);
     s->rest = false;
     s->bias_at_limit = false;
+    s->mag_body_ok = false;
+    s->rest_m0_ok = false;
     zero_lp(s->acc_lp.z0, 3);
     zero_lp(s->acc_lp.z1, 3);
     s->acc_lp.n = 0;
@@ -401,6 +414,62 @@ static void rest_gyro(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coef
     }
 }
 
+/* squared distance between the directions of two non-zero 3-vectors */
+static real_t chord2(const real_t u[3], const real_t v[3])
+{
+    real_t nu = GN_SQRT(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    real_t nv = GN_SQRT(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    real_t dx = u[0] / nu - v[0] / nv, dy = u[1] / nu - v[1] / nv, dz = u[2] / nu - v[2] / nv;
+    return dx * dx + dy * dy + dz * dz;
+}
+
+/* a rest candidacy begins: keep the low-passed accelerometer l (unit) and magnetometer
+ * and start the gyro's rotation rest_q at the identity */
+static void rest_begin(gnomon_robust_ahrs_state *s, const real_t l[3])
+{
+    real_t n = GN_SQRT(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+    for (int i = 0; i < 3; ++i) {
+        s->rest_a0[i] = l[i] / n;
+        s->rest_m0[i] = s->mag_body_lp[i];
+    }
+    s->rest_m0_ok = s->mag_body_ok;
+    s->rest_q[0] = R(1.0);
+    s->rest_q[1] = s->rest_q[2] = s->rest_q[3] = R(0.0);
+}
+
+/* during a candidacy: rest_q <- rest_q (x) exp((g - b) dt) */
+static void rest_turn(gnomon_robust_ahrs_state *s, real_t dt, const real_t g[3])
+{
+    if (s->rest_t > R(0.0) && dt > R(0.0)) {
+        gn_exp_mul(s->rest_q, (g[0] - s->bias[0]) * dt, (g[1] - s->bias[1]) * dt,
+                   (g[2] - s->bias[2]) * dt, true);
+    }
+}
+
+/* the gyro's rotation since the candidacy began would have turned the accelerometer's or
+ * the magnetometer's (hard-iron offset removed) direction by twice rest_th_turn */
+static bool gyro_says_turned(const gnomon_robust_ahrs_state *s,
+                             const gnomon_robust_ahrs_coefficients *c)
+{
+    real_t Rq[9], pr[3], m[3];
+    real_t big = R(4.0) * c->rest_th_turn2;
+    gn_dcm(s->rest_q, Rq);
+    mat3_tvec(Rq, s->rest_a0[0], s->rest_a0[1], s->rest_a0[2], pr);
+    if (chord2(pr, s->rest_a0) >= big) {
+        return true;
+    }
+    if (s->rest_m0_ok) {
+        for (int i = 0; i < 3; ++i) {
+            m[i] = s->rest_m0[i] - s->hard_iron.o[i];
+        }
+        if (m[0] * m[0] + m[1] * m[1] + m[2] * m[2] > R(0.0)) {
+            mat3_tvec(Rq, m[0], m[1], m[2], pr);
+            return chord2(pr, m) >= big;
+        }
+    }
+    return false;
+}
+
 static void rest_acc(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coefficients *c,
                      const real_t a[3])
 {
@@ -410,16 +479,42 @@ static void rest_acc(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coeff
     if (dx * dx + dy * dy + dz * dz >= c->rest_th_acc2) {
         s->rest_t = R(0.0);
         s->rest = false;
-    } else {
-        s->rest_t += c->ts_acc_s;
-        if (s->rest_t >= c->rest_min_s && !s->rest) {
-            const real_t *gl = s->gyro_lp, *b = s->bias;
-            real_t far = gn_max(GN_FABS(gl[0] - b[0]),
-                                gn_max(GN_FABS(gl[1] - b[1]), GN_FABS(gl[2] - b[2])));
-            if (far <= c->rest_th_rate || s->rest_t >= c->rest_min_large_s) {
-                s->rest = true;
-            }
+        return;
+    }
+    if (s->rest_t == R(0.0)) {
+        rest_begin(s, l);
+    } else if (c->rest_th_turn2 > R(0.0) && chord2(l, s->rest_a0) >= c->rest_th_turn2) {
+        s->rest = false;  /* the direction turned: not rest, a new candidacy from here */
+        s->rest_t = R(0.0);
+        rest_begin(s, l);
+    }
+    s->rest_t += c->ts_acc_s;
+    if (s->rest_t >= c->rest_min_s && !s->rest) {
+        const real_t *gl = s->gyro_lp, *b = s->bias;
+        real_t far = gn_max(GN_FABS(gl[0] - b[0]),
+                            gn_max(GN_FABS(gl[1] - b[1]), GN_FABS(gl[2] - b[2])));
+        if (far <= c->rest_th_rate || (s->rest_t >= c->rest_min_large_s && (
+                c->rest_th_turn2 == R(0.0) || gyro_says_turned(s, c)))) {
+            s->rest = true;
         }
+    }
+}
+
+/* the magnetometer part: low-pass the field in the body frame; a direction farther than
+ * rest_th_turn from the candidacy's first ends the rest and the candidacy */
+static void rest_mag(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coefficients *c,
+                     const real_t m[3])
+{
+    real_t l[3];
+    lowpass(s->rest_mag_lp.z0, s->rest_mag_lp.z1, &s->rest_mag_lp.n, m, 3, &c->rest_mag_lp, l);
+    s->mag_body_lp[0] = l[0];
+    s->mag_body_lp[1] = l[1];
+    s->mag_body_lp[2] = l[2];
+    s->mag_body_ok = true;
+    if (s->rest_t > R(0.0) && s->rest_m0_ok && c->rest_th_turn2 > R(0.0)
+            && chord2(l, s->rest_m0) >= c->rest_th_turn2) {
+        s->rest_t = R(0.0);
+        s->rest = false;
     }
 }
 
@@ -836,6 +931,9 @@ int gnomon_robust_ahrs_update_gyro(gnomon_robust_ahrs_state *s,
         rest_gyro(s, c, gyro);
     }
     strapdown(s, dt_s, gyro);
+    if (c->rest_bias) {
+        rest_turn(s, dt_s, gyro);
+    }
     if (dt_s > c->max_dt_s) {
         return GNOMON_ROBUST_AHRS_GAP | (s->bias_at_limit ? GNOMON_ROBUST_AHRS_BIAS_AT_LIMIT : 0);
     }
@@ -858,6 +956,9 @@ int gnomon_robust_ahrs_update_gyro(gnomon_robust_ahrs_state *s,
     }
     /* magnetometer phase */
     if (new_m && m[0] * m[0] + m[1] * m[1] + m[2] * m[2] > R(0.0)) {
+        if (c->rest_bias) {
+            rest_mag(s, c, m);
+        }
         magnetometer(s, c, Rm, m);
     } else {
         flags |= GNOMON_ROBUST_AHRS_MAG_SKIPPED;

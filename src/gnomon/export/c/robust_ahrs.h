@@ -61,6 +61,8 @@ typedef struct {
     real_t rest_th_gyro_deg_s;    /* rest threshold on the gyro deviation, deg/s */
     real_t rest_th_rate_deg_s;    /* steady rate that needs rest_min_large_bias_s, deg/s */
     real_t rest_min_large_bias_s;  /* minimum duration of such a rest, s */
+    real_t rest_th_turn_deg;      /* a turn of the accelerometer or magnetometer direction
+                                   * beyond this ends a rest, deg (0: off) */
     real_t rest_th_acc_m_s2;      /* rest threshold on the accelerometer deviation, m/s^2 */
     real_t mag_current_tau_s;     /* low-pass of the field's norm and dip, s */
     real_t mag_ref_tau_s;         /* learned field reference time constant, s */
@@ -118,6 +120,8 @@ typedef struct {
     real_t rest_min_s;
     real_t rest_th_rate;    /* rad/s */
     real_t rest_min_large_s;
+    gnomon_robust_ahrs_lowpass rest_mag_lp;  /* the magnetometer, body (its own ts) */
+    real_t rest_th_turn2;   /* squared chord of rest_th_turn_deg (0: off) */
     gnomon_robust_ahrs_lowpass acc_lp;       /* the accelerometer in frame I */
     bool motion_bias;
     int32_t bias_every;
@@ -199,8 +203,15 @@ typedef struct {
     real_t gyro_lp[3];   /* rad/s: its output */
     gnomon_robust_ahrs_lowpass3 rest_acc_lp;
     real_t rest_t;       /* s within the thresholds */
+    gnomon_robust_ahrs_lowpass3 rest_mag_lp;  /* the magnetometer, body frame */
+    real_t mag_body_lp[3];  /* its output */
+    real_t rest_a0[3];   /* unit low-passed accelerometer when the candidacy began */
+    real_t rest_m0[3];   /* the low-passed magnetometer then */
+    real_t rest_q[4];    /* body then <- body now: the gyro (minus bias) since */
     bool rest;
     bool bias_at_limit;  /* a component of the bias at +-bias_clip */
+    bool mag_body_ok;    /* mag_body_lp holds a sample */
+    bool rest_m0_ok;     /* rest_m0 was taken */
     /* inclination and bias in motion */
     gnomon_robust_ahrs_lowpass3 acc_lp;  /* m/s^2, frame I */
     real_t acc_rate;     /* rad/s: sine of the last correction angle / ts */
