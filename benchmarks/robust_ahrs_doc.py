@@ -10,6 +10,7 @@ commands listed in the page) so that every number on the page is computed.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -100,10 +101,22 @@ def main() -> str:
                      ("{ABLATION_TABLE}", abl_t), ("{TUNING_TABLE}", "\n".join(tl)),
                      ("{LOGO_TABLE}", "\n".join(lg)), ("{CROSS_TABLE}", cross_table),
                      ("{SPEED}", sp),
-                     ("{CLI_SPEED}", cli_speed)):
+                     ("{CLI_SPEED}", cli_speed), ("{LOO_TABLES}", loo_tables())):
         text = text.replace(key, val)
     (ROOT / "docs" / "estimators" / "realworld-ahrs.md").write_text(text)
     return text
+
+
+def loo_tables() -> str:
+    """The leave-one-data-set-out tables from ``docs/figures/defaults_loo.json``
+    (``benchmarks/defaults_loo.py``)."""
+    path = ROOT / "docs" / "figures" / "defaults_loo.json"
+    if not path.is_file():
+        return "(run `python benchmarks/defaults_loo.py` for the tables)"
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from defaults_loo import render
+
+    return render(json.loads(path.read_text()))
 
 
 if __name__ == "__main__":
