@@ -20,13 +20,15 @@ inlined into it (``inline="always"``), so the compiled step is still one functio
 locals stay in registers:
 
 1. ``rest_gyro``: gyro low-pass and deviation (rest detection, gyro part);
-2. ``strapdown``: ``q_gyr <- q_gyr ⊗ exp((ω - b) dt)``; a gap (``dt > max_dt_s``) ends
-   the step here;
-3. ``rest_acc`` and ``inclination``: accelerometer low-pass in I and the correction of
-   ``q_acc`` that takes it to up;
+2. ``strapdown``: ``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` (and ``rest_turn``: the same
+   rotation since a rest candidacy began); a gap (``dt > max_dt_s``) ends the step here;
+3. ``rest_acc`` and ``inclination``: the rest detection's accelerometer part (its
+   direction must not turn; a large rate is a bias only where ``gyro_says_turned``),
+   accelerometer low-pass in I and the correction of ``q_acc`` that takes it to up;
 4. ``bias_kf``: the gyro-bias Kalman filter, at rest (``H = I``) or in motion (the
    inclination correction as a measurement of the horizontal bias);
-5. ``mag_accumulate`` → ``hard_iron`` → ``mag_disturbance`` / ``new_field`` →
+5. ``rest_mag`` (the field's direction in the body frame must not turn during a rest),
+   ``mag_accumulate`` → ``hard_iron`` → ``mag_disturbance`` / ``new_field`` →
    ``heading_gain`` → ``heading``: the magnetometer, heading only.
 
 The batch loop (``robust_ahrs_batch``) and the per-sample kernel of the filter's ``update``
