@@ -26,19 +26,26 @@ static inline void gn_quat_mul(const real_t p[4], const real_t q[4], real_t out[
 /* q <- q (x) exp(r), r = (rx, ry, rz) a rotation vector (rad) in q's body frame;
  * normalised when `normalise` (one Newton step near unit norm, 1/sqrt otherwise).
  * gnomon.kernels.quat.exp_mul with its exact forms (trig = True). */
+/* exp(r) = [dw, k r] for th2 = |r|^2: cos(|r|/2) and sin(|r|/2)/|r| (their series below
+ * GN_SMALL_TH2), the exact forms of gnomon.kernels.quat.exp_mul */
+static inline void gn_exp_half(real_t th2, real_t *dw, real_t *k)
+{
+    if (th2 >= GN_SMALL_TH2) {
+        real_t th = GN_SQRT(th2);
+        *dw = GN_COS(R(0.5) * th);
+        *k = GN_SIN(R(0.5) * th) / th;
+    } else {
+        real_t t4 = th2 * th2;
+        *dw = (R(1.0) - th2 * R(1.0 / 8.0)) + t4 * (R(1.0 / 384.0) - th2 * R(1.0 / 46080.0));
+        *k = (R(0.5) - th2 * R(1.0 / 48.0)) + t4 * (R(1.0 / 3840.0) - th2 * R(1.0 / 645120.0));
+    }
+}
+
 static inline void gn_exp_mul(real_t q[4], real_t rx, real_t ry, real_t rz, bool normalise)
 {
     real_t th2 = rx * rx + ry * ry + rz * rz;
     real_t dw, k;
-    if (th2 >= GN_SMALL_TH2) {
-        real_t th = GN_SQRT(th2);
-        dw = GN_COS(R(0.5) * th);
-        k = GN_SIN(R(0.5) * th) / th;
-    } else {
-        real_t t4 = th2 * th2;
-        dw = (R(1.0) - th2 * R(1.0 / 8.0)) + t4 * (R(1.0 / 384.0) - th2 * R(1.0 / 46080.0));
-        k = (R(0.5) - th2 * R(1.0 / 48.0)) + t4 * (R(1.0 / 3840.0) - th2 * R(1.0 / 645120.0));
-    }
+    gn_exp_half(th2, &dw, &k);
     real_t dx = k * rx, dy = k * ry, dz = k * rz;
     real_t w = q[0], x = q[1], y = q[2], z = q[3];
     real_t nw = w * dw - x * dx - y * dy - z * dz;

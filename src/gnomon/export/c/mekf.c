@@ -38,17 +38,8 @@ static void rotate_inv(const real_t q[4], const real_t v[3], real_t out[3])
 /* exp(r) as a quaternion (kernels.quat.exp: exp_mul of the identity, exact forms) */
 static void quat_exp(real_t rx, real_t ry, real_t rz, real_t e[4])
 {
-    real_t th2 = rx * rx + ry * ry + rz * rz;
     real_t dw, k;
-    if (th2 >= GN_SMALL_TH2) {
-        real_t th = GN_SQRT(th2);
-        dw = GN_COS(R(0.5) * th);
-        k = GN_SIN(R(0.5) * th) / th;
-    } else {
-        real_t t4 = th2 * th2;
-        dw = (R(1.0) - th2 * R(1.0 / 8.0)) + t4 * (R(1.0 / 384.0) - th2 * R(1.0 / 46080.0));
-        k = (R(0.5) - th2 * R(1.0 / 48.0)) + t4 * (R(1.0 / 3840.0) - th2 * R(1.0 / 645120.0));
-    }
+    gn_exp_half(rx * rx + ry * ry + rz * rz, &dw, &k);
     e[0] = dw;
     e[1] = k * rx;
     e[2] = k * ry;
