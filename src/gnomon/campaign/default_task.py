@@ -100,14 +100,16 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
     """The default task for the runs of a chunk, as one call (its batch form).
 
     ``scenarios``, ``params_list``, ``seeds``: one per run, as the run form takes them.
-    Each run is simulated alone. Filters with a batch-over-runs kernel (those that
+    The runs are simulated together (:func:`gnomon.scenarios.simulator.simulate_many`:
+    the IMU runs of one scenario in one compiled call; each run as it would be alone).
+    Filters with a batch-over-runs kernel (those that
     override ``Estimator.run_many``) get the runs that share the filter, its parameters
     and their time stamps together, in one call; the others run as each recording is
-    made (which is then dropped unless a batch still needs it). Returns one metrics
+    simulated (each recording is dropped when no batch still needs it). Returns one metrics
     dict per run, or the exception that failed that run."""
     from gnomon.estimators import registry
     from gnomon.estimators.base import Estimator
-    from gnomon.scenarios import simulate
+    from gnomon.scenarios.simulator import simulate_many
 
     def batched(name):
         return registry.get(name).run_many.__func__ is not Estimator.run_many.__func__
@@ -125,10 +127,15 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
     results: list = []
     recs: dict = {}
     groups: dict = {}
-    for k, (scenario, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+    simulated = simulate_many(scenarios, seeds)
+    for k in range(len(simulated)):
         results.append({})
         try:
-            recs[k] = rec = simulate(scenario, rng_seed=seed)
+            rec = simulated[k]
+            simulated[k] = None
+            if isinstance(rec, BaseException):
+                raise rec
+            recs[k] = rec
             if rec.sun_valid is not None:
                 results[k]["eclipse_fraction"] = float(np.mean(~rec.sun_valid))
             for name in _filters_for(rec, filters):

@@ -23,6 +23,13 @@ The output :class:`gnomon.recording.Recording` (frames ``{"reference": "o", "bod
   boresight in b (:func:`gnomon.sensors.star_tracker_model`; the truth ``q_ib`` is
   ``q_io ⊗ q_true``). No Moon exclusion: the environment has no Moon ephemeris.
 
+The truth (orbit, environment, attitude dynamics) does not depend on the seed: only
+the sensors, the on-board field model's error and the inertia error draw random
+numbers. It is computed once per process for each distinct orbit / environment /
+spacecraft / controller / initial state and kept (:func:`truth_of`, the last
+:data:`TRUTH_CACHE_SIZE`), so the runs of a campaign that varies only sensors, seeds
+or model errors simulate their sensors alone; each recording gets its own copies.
+
 Random draws: ``numpy.random.SeedSequence(seed).spawn(7)`` -> gyro, magnetometer,
 sun sensor, accelerometer, field-model error, inertia error, star tracker (the first
 six are the children ``spawn(6)`` gave before the star tracker existed); each sensor
@@ -30,6 +37,10 @@ has its own generator so changing one sensor's noise leaves the others' draws un
 """
 
 from __future__ import annotations
+
+import collections
+import json
+import types
 
 import numpy as np
 
@@ -55,7 +66,8 @@ from gnomon.sensors import (
     sun_sensor_model,
 )
 
-__all__ = ["build_orbit", "simulate", "simulate_imu"]
+__all__ = ["build_orbit", "simulate", "simulate_imu", "simulate_many", "truth_of",
+           "TRUTH_CACHE_SIZE"]
 
 _D2R = np.pi / 180.0
 _AS2R = _D2R / 3600.0
@@ -85,14 +97,48 @@ def _inertia_model(J, pct, rng):
     return d[:, None] * J * d[None, :]
 
 
-def simulate(scenario, rng_seed: int | None = None) -> Recording:
-    """Simulate a validated :class:`~gnomon.scenarios.Scenario`; ``rng_seed`` overrides its seed."""
-    cfg = scenario.config
-    seed = cfg["seed"] if rng_seed is None else int(rng_seed)
-    if cfg["kind"] == "imu":
-        return simulate_imu(cfg, seed)
-    g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia, g_st = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
+#: how many distinct truths :func:`truth_of` keeps per process
+TRUTH_CACHE_SIZE = 4
+_TRUTHS: collections.OrderedDict = collections.OrderedDict()
+#: the config keys the truth of a spacecraft scenario depends on (field_error and
+#: spacecraft.inertia_error_pct are removed from them: they only change the on-board models)
+_TRUTH_KEYS = ("epoch", "duration_s", "step_s", "orbit", "environment", "spacecraft",
+               "initial", "controller")
+
+
+def _truth_key(cfg: dict) -> str:
+    d = {k: cfg[k] for k in _TRUTH_KEYS}
+    d["environment"] = {k: v for k, v in d["environment"].items() if k != "field_error"}
+    d["spacecraft"] = {k: v for k, v in d["spacecraft"].items() if k != "inertia_error_pct"}
+    return json.dumps(d, sort_keys=True, default=str)
+
+
+def truth_of(cfg: dict) -> types.SimpleNamespace:
+    """The seed-independent part of a validated spacecraft scenario config: time base,
+    orbit, environment and attitude dynamics (arrays read-only; cached per process,
+    see the module docstring). Fields: ``t`` (N,) s, ``orbit``, ``epoch``, ``r_i``,
+    ``v_i`` (N, 3) m, m/s, ``b_i`` (N, 3) nT, ``R_io`` (N, 3, 3), ``q_io`` (N, 4),
+    ``wio`` (N, 3) rad/s (``w_io_o``), ``hist`` (``AttitudeHistory``), ``q_ob`` (N, 4),
+    ``w_ob`` (N, 3) rad/s, ``b_o``, ``b_b`` (N, 3) nT, ``s_i``, ``s_o``, ``s_b`` (N, 3)
+    unit, ``illum`` (N,), ``torque_ctrl`` (N, 3) N m."""
+    key = _truth_key(cfg)
+    hit = _TRUTHS.get(key)
+    if hit is not None:
+        _TRUTHS.move_to_end(key)
+        return hit
+    truth = _compute_truth(cfg)
+    for v in vars(truth).values():
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
+    for v in vars(truth.hist).values():
+        v.flags.writeable = False
+    _TRUTHS[key] = truth
+    while len(_TRUTHS) > TRUTH_CACHE_SIZE:
+        _TRUTHS.popitem(last=False)
+    return truth
+
+
+def _compute_truth(cfg: dict) -> types.SimpleNamespace:
     epoch = parse_epoch(cfg["epoch"])
     dt = cfg["step_s"]
     n = int(round(cfg["duration_s"] / dt)) + 1
@@ -131,17 +177,10 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
     q_ob = quat_mul(quat_conj(q_io), q_ib)
     w_ob = w_ib - quat_rotate(quat_conj(q_ob), wio)
 
-    # field: truth in o and b; on-board model (possibly in error) in o
+    # field: truth in o and b
     q_oi = quat_conj(q_io)
     b_o = quat_rotate(q_oi, b_i)
     b_b = quat_rotate(quat_conj(q_ib), b_i)
-    fe = env["field_error"]
-    if fe["kind"] == "none" or fe["level_pct"] == 0.0:
-        b_o_model = b_o.copy()
-    else:
-        onboard = field_model(env["field_model"], fe["kind"], fe["level_pct"], g_field,
-                              nmax=env["field_degree"] if env["field_model"] == "igrf" else 1)
-        b_o_model = quat_rotate(q_oi, field_i_nT(onboard, epoch, t, r_i))
 
     # Sun and shadow
     r_sun = sun_position_i(epoch, t)
@@ -154,6 +193,38 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
              else illumination_fraction(r_i, r_sun))
     s_o = quat_rotate(q_oi, s_i)
     s_b = quat_rotate(quat_conj(q_ib), s_i)
+    torque_ctrl = np.cross(hist.m_b, b_b * 1e-9)
+    return types.SimpleNamespace(
+        t=t, orbit=orbit, epoch=epoch, r_i=r_i, v_i=v_i, b_i=b_i, R_io=R_io, q_io=q_io,
+        wio=wio, hist=hist, q_ob=q_ob, w_ob=w_ob, b_o=b_o, b_b=b_b, s_i=s_i, s_o=s_o,
+        s_b=s_b, illum=illum, torque_ctrl=torque_ctrl)
+
+
+def simulate(scenario, rng_seed: int | None = None) -> Recording:
+    """Simulate a validated :class:`~gnomon.scenarios.Scenario`; ``rng_seed`` overrides its seed."""
+    cfg = scenario.config
+    seed = cfg["seed"] if rng_seed is None else int(rng_seed)
+    if cfg["kind"] == "imu":
+        return simulate_imu(cfg, seed)
+    g_gyro, g_mag, g_sun, g_acc, g_field, g_inertia, g_st = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
+    tr = truth_of(cfg)
+    t, orbit, epoch = tr.t, tr.orbit, tr.epoch
+    n = t.size
+    r_i, s_i, q_ib, w_ib = tr.r_i, tr.s_i, tr.hist.q_ib, tr.hist.w_ib_b
+    b_b, illum = tr.b_b, tr.illum
+    env = cfg["environment"]
+    sc = cfg["spacecraft"]
+    J = np.asarray(sc["inertia_kg_m2"], float)
+
+    # the on-board field model (possibly in error) in o
+    fe = env["field_error"]
+    if fe["kind"] == "none" or fe["level_pct"] == 0.0:
+        b_o_model = tr.b_o.copy()
+    else:
+        onboard = field_model(env["field_model"], fe["kind"], fe["level_pct"], g_field,
+                              nmax=env["field_degree"] if env["field_model"] == "igrf" else 1)
+        b_o_model = quat_rotate(quat_conj(tr.q_io), field_i_nT(onboard, epoch, t, r_i))
 
     # sensors
     gy = cfg["sensors"]["gyro"]
@@ -168,25 +239,27 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
     mag, _ = magnetometer_model(b_b, g_mag, mg["noise_nT"], mg["bias_nT"], mg["scale_pct"],
                                 mg["misalignment_deg"])
     ss = cfg["sensors"]["sun_sensor"]
-    sun, valid = sun_sensor_model(s_b, illum, g_sun, ss["noise_deg"], ss["boresight_b"],
+    sun, valid = sun_sensor_model(tr.s_b, illum, g_sun, ss["noise_deg"], ss["boresight_b"],
                                   ss["fov_half_angle_deg"], ss["min_illumination"])
     ac = cfg["sensors"]["accelerometer"]
     accel = (accelerometer_model(n, g_acc, ac["noise_m_s2"], ac["bias_m_s2"])
              if ac["enabled"] else None)
 
     J_model = _inertia_model(J, sc["inertia_error_pct"], g_inertia)
-    torque_ctrl = np.cross(hist.m_b, b_b * 1e-9)
+    hist = tr.hist
     extra = {
-        "w_ob_b": w_ob, "w_ib_b": w_ib, "w_io_o": wio, "b_o_nT": b_o,
-        "b_o_model_nT": b_o_model, "b_b_nT": b_b, "s_o": s_o, "s_b": s_b, "eclipse": illum,
-        "gyro_bias_rad_s": bias, "q_io": q_io, "r_i_m": r_i, "v_i_m": v_i,
-        "h_wheel_b_Nms": hist.h_b, "hdot_wheel_b_Nm": hist.hdot_b,
-        "m_dipole_b_Am2": hist.m_b, "torque_ctrl_b_Nm": torque_ctrl,
+        "w_ob_b": tr.w_ob, "w_ib_b": w_ib, "w_io_o": tr.wio, "b_o_nT": tr.b_o,
+        "b_o_model_nT": b_o_model, "b_b_nT": b_b, "s_o": tr.s_o, "s_b": tr.s_b,
+        "eclipse": illum, "gyro_bias_rad_s": bias, "q_io": tr.q_io, "r_i_m": r_i,
+        "v_i_m": tr.v_i, "h_wheel_b_Nms": hist.h_b, "hdot_wheel_b_Nm": hist.hdot_b,
+        "m_dipole_b_Am2": hist.m_b, "torque_ctrl_b_Nm": tr.torque_ctrl,
         "torque_dist_b_Nm": hist.torque_dist_b,
         "inertia_kg_m2": np.broadcast_to(J, (n, 3, 3)).copy(),
         "inertia_model_kg_m2": np.broadcast_to(J_model, (n, 3, 3)).copy(),
         "time_orbits": t / period,
     }
+    # each recording its own arrays (the truth's are shared and read-only)
+    extra = {k: (v.copy() if not v.flags.writeable else v) for k, v in extra.items()}
     st = cfg["sensors"]["star_tracker"]
     if st["enabled"]:
         q_st, st_valid, st_flags = star_tracker_model(
@@ -200,19 +273,18 @@ def simulate(scenario, rng_seed: int | None = None) -> Recording:
         extra.update({"st_q_ib": q_st, "st_valid": st_valid, "st_flags": st_flags,
                       "st_boresight_b": np.broadcast_to(
                           boresight_frame(st["boresight_b"])[:, 2], (n, 3)).copy()})
-    return Recording(t=t, gyro=gyro, accel=accel, mag=mag, mag_unit="nT", sun=sun,
-                     sun_valid=valid, q_true=q_ob, frames={"reference": "o", "body": "b"},
+    return Recording(t=t.copy(), gyro=gyro, accel=accel, mag=mag, mag_unit="nT", sun=sun,
+                     sun_valid=valid, q_true=tr.q_ob.copy(), frames={"reference": "o", "body": "b"},
                      source=f"gnomon.simulate {cfg['name'] or scenario.source} seed={seed}",
                      extra=extra)
 
 
-def simulate_imu(cfg: dict, seed: int) -> Recording:
-    """A ``kind: imu`` scenario through ``gnomon.simulation.ahrs.simulate_ahrs`` (ENU,
-    ``q_true`` = ``q_nb``; every draw from ``numpy.random.default_rng(seed)``)."""
-    from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs
+def _imu_params(cfg: dict):
+    """The ``AhrsSimParams`` of a validated ``kind: imu`` scenario config."""
+    from gnomon.simulation.ahrs import AhrsSimParams
 
     m = cfg["imu"]
-    p = AhrsSimParams(
+    return AhrsSimParams(
         duration_s=cfg["duration_s"], rate_hz=m["rate_hz"], rate_rms=m["rate_rms_rad_s"],
         rate_band_hz=(m["rate_band_low_hz"], m["rate_band_high_hz"]), rest_s=m["rest_s"],
         gyro_noise=m["gyro_noise_rad_s_rt_hz"], gyro_bias_std=m["gyro_bias_std_rad_s"],
@@ -220,4 +292,55 @@ def simulate_imu(cfg: dict, seed: int) -> Recording:
         mag_noise_uT=m["mag_noise_uT"], field_uT=m["field_uT"],
         inclination_deg=m["inclination_deg"], linear_accel_rms=m["linear_accel_rms_m_s2"],
         mag_disturbance_uT=m["mag_disturbance_uT"])
-    return simulate_ahrs(p, np.random.default_rng(seed))
+
+
+def simulate_imu(cfg: dict, seed: int) -> Recording:
+    """A ``kind: imu`` scenario through ``gnomon.simulation.ahrs.simulate_ahrs`` (ENU,
+    ``q_true`` = ``q_nb``; every draw from ``numpy.random.default_rng(seed)``)."""
+    from gnomon.simulation.ahrs import simulate_ahrs
+
+    return simulate_ahrs(_imu_params(cfg), np.random.default_rng(seed))
+
+
+def simulate_many(scenarios, seeds) -> list:
+    """``[simulate(scenarios[k], seeds[k]) for k]``, batched: a ``Recording`` per run, or
+    the exception that failed that run.
+
+    The ``kind: imu`` runs that share their scenario (all but the seed) are simulated in
+    one call (``gnomon.simulation.ahrs.simulate_ahrs_batch``: each run's draws by its own
+    generator, the rest compiled for all of them); the others one by one. Each run equals
+    its ``simulate`` (the same function computes it)."""
+    import json
+
+    import gnomon.scenarios as scenarios_mod
+
+    out: list = [None] * len(scenarios)
+    groups: dict = {}
+    for k, (sc, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+        if isinstance(sc, scenarios_mod.Scenario) and sc.config["kind"] == "imu":
+            key = json.dumps({a: b for a, b in sc.config.items() if a != "seed"},
+                             sort_keys=True, default=str)
+            groups.setdefault(key, []).append(k)
+            continue
+        try:
+            out[k] = scenarios_mod.simulate(sc, rng_seed=seed)
+        except Exception as err:  # noqa: BLE001 - this run fails, the others go on
+            out[k] = err
+    for ks in groups.values():
+        try:
+            from gnomon.simulation.ahrs import simulate_ahrs_batch
+
+            recs = simulate_ahrs_batch(
+                _imu_params(scenarios[ks[0]].config),
+                [np.random.default_rng(int(scenarios[k].config["seed"] if seeds[k] is None
+                                           else seeds[k])) for k in ks])
+        except Exception:  # noqa: BLE001 - then one at a time, to fail only the bad one
+            recs = []
+            for k in ks:
+                try:
+                    recs.append(scenarios_mod.simulate(scenarios[k], rng_seed=seeds[k]))
+                except Exception as err:  # noqa: BLE001
+                    recs.append(err)
+        for k, rec in zip(ks, recs, strict=True):
+            out[k] = rec
+    return out
