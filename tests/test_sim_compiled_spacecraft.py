@@ -86,3 +86,30 @@ def test_simulate_many_equals_simulate():
         np.testing.assert_array_equal(out[k].mag, one.mag)
     bad = S.simulate_many([sc, "no-such-scenario"], [1, 2])
     assert isinstance(bad[1], Exception) and bad[0].gyro.shape == (601, 3)
+
+
+def test_score_runs_equals_the_metrics():
+    """Batched scoring = score_run + score_run_budget, bit for bit (same operations), on
+    IMU runs; recordings that do not fit (a sun sensor, a NaN, other time stamps) go to
+    the metrics functions themselves."""
+    from gnomon.campaign.scoring import score_runs
+    from gnomon.estimators.mahony import Mahony
+    from gnomon.metrics import score_run, score_run_budget
+
+    imu = load_scenario("imu-handheld").replace({"duration_s": 20.0})
+    recs = S.simulate_many([imu] * 4, [1, 2, 3, 4])
+    qs = Mahony.run_many(recs, Mahony.Params())
+    qs[2] = -qs[2]                                  # the sign of q does not matter
+    sc = S.simulate(_short(), rng_seed=1)
+    cases = [(recs, qs, 3.0), (recs[:3], qs[:3], 0.0), (recs, qs, 25.0),
+             ([recs[0], sc], [qs[0], sc.q_true], 1.0)]
+    bad = qs[1].copy()
+    bad[5] = np.nan
+    cases.append((recs[:2], [qs[0], bad], 1.0))
+    for rs, q, settle in cases:
+        got = score_runs(rs, q, settle)
+        for r, qq, row in zip(rs, q, got, strict=True):
+            want = {**score_run(r, qq, settle), **score_run_budget(r, qq, settle)}
+            assert list(row) == list(want)
+            np.testing.assert_array_equal(np.array(list(row.values())),
+                                          np.array(list(want.values())))

@@ -105,8 +105,11 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
     Filters with a batch-over-runs kernel (those that
     override ``Estimator.run_many``) get the runs that share the filter, its parameters
     and their time stamps together, in one call; the others run as each recording is
-    simulated (each recording is dropped when no batch still needs it). Returns one metrics
+    simulated (each recording is dropped when no batch still needs it); a batch's runs are
+    scored together (:func:`gnomon.campaign.scoring.score_runs`, the same numbers).
+    Returns one metrics
     dict per run, or the exception that failed that run."""
+    from gnomon.campaign.scoring import score_runs
     from gnomon.estimators import registry
     from gnomon.estimators.base import Estimator
     from gnomon.scenarios.simulator import simulate_many
@@ -123,6 +126,28 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
         settle = _settle_s(scenarios[k], settle_s)
         scores = {**score_run(recs[k], q, settle), **score_run_budget(recs[k], q, settle)}
         results[k].update({f"{name}.{m}": v for m, v in scores.items()})
+
+    def score_many(ks, name, qs):
+        # the runs of a batch that share their settling time: scored together
+        # (gnomon.campaign.scoring.score_runs: the same numbers as score(k, name, q))
+        todo: dict = {}
+        for k, q in zip(ks, qs, strict=True):
+            if isinstance(results[k], BaseException) or isinstance(q, BaseException):
+                score(k, name, q)
+            else:
+                todo.setdefault(_settle_s(scenarios[k], settle_s), []).append((k, q))
+        for settle, items in todo.items():
+            try:
+                rows = score_runs([recs[k] for k, _ in items], [q for _, q in items], settle)
+            except Exception:  # noqa: BLE001 - then one run at a time, to fail only the bad one
+                for k, q in items:
+                    try:
+                        score(k, name, q)
+                    except Exception as err:  # noqa: BLE001
+                        results[k] = err
+                continue
+            for (k, _), scores in zip(items, rows, strict=True):
+                results[k].update({f"{name}.{m}": v for m, v in scores.items()})
 
     results: list = []
     recs: dict = {}
@@ -160,8 +185,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
                     qs.append(registry.create(name, fp).run(recs[k]).q)
                 except Exception as err:  # noqa: BLE001
                     qs.append(err)
-        for k, q in zip(ks, qs, strict=True):
-            score(k, name, q)
+        score_many(ks, name, qs)
     return results
 
 
