@@ -1,8 +1,15 @@
 """Campaign throughput: a 1,000-run seed-001 campaign (one orbit each) with the local
-executor, and Dask LocalCluster throughput with 1 vs 2 workers.
+executor, Dask LocalCluster throughput with 1 vs 2 workers, and (``--imu-runs``) an
+imu-handheld campaign against its batch filter alone.
 
     PYTHONPATH=src python benchmarks/bench_campaign.py [--runs 1000] [--dask-runs 120]
-        [--workers 2] [--out DIR] [--json]
+        [--workers 2] [--imu-runs 10000] [--skip-local] [--skip-dask] [--out DIR]
+
+``--imu-runs N``: ``gnomon campaign imu-handheld --runs N --filter mahony`` (local, the
+same workers), then the filter alone over the same samples: the campaign's chunks
+simulated again in as many processes and only the batched filter call
+(``Mahony.run_many``, what the campaign calls) timed; ``ratio`` is the campaign's wall
+time over the filter's (summed per process, the slowest process).
 
 Targets (issue 5): 1,000 runs in < 10 min on 2 cores (local); Dask 2 workers >= 1.6x the
 throughput of 1 worker. Each run simulates one orbit (6,000 s at 1 s) and runs the EKF
@@ -71,6 +78,56 @@ def bench_dask(runs: int, out: pathlib.Path) -> dict:
             "met": rates[2] / rates[1] >= 1.6}
 
 
+def _filter_alone(chunks):
+    """Seconds in ``Mahony.run_many`` over the runs of ``chunks`` (lists of seeds),
+    each chunk simulated first (not timed), as the campaign's task does."""
+    from gnomon.estimators.mahony import Mahony
+    from gnomon.scenarios import load_scenario
+    from gnomon.scenarios.simulator import simulate_many
+
+    sc = load_scenario("imu-handheld")
+    params = Mahony.Params()
+    spent = samples = 0
+    for seeds in chunks:
+        recs = simulate_many([sc] * len(seeds), seeds)
+        t0 = time.perf_counter()
+        Mahony.run_many(recs, params)
+        spent += time.perf_counter() - t0
+        samples += sum(len(r) for r in recs)
+    return spent, samples
+
+
+def bench_imu(runs: int, workers: int, out: pathlib.Path) -> dict:
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    import pandas as pd
+
+    with tempfile.TemporaryDirectory() as d:     # compile / load the caches
+        run_campaign("imu-handheld", 4, d, executor="serial", filters=["mahony"],
+                     progress=False)
+        _filter_alone([[1, 2]])
+    t0 = time.perf_counter()
+    res = run_campaign("imu-handheld", runs, out / "imu", root_seed=2026, executor="local",
+                       workers=workers, filters=["mahony"], progress=True)
+    wall = time.perf_counter() - t0
+    table = pd.read_parquet(out / "imu" / "results.parquet").sort_values("index")
+    seeds = [int(s) for s in table["seed"]]
+    chunk = 25
+    chunks = [seeds[i:i + chunk] for i in range(0, len(seeds), chunk)]
+    per_worker = [chunks[w::workers] for w in range(workers)]
+    ctx = mp.get_context("fork")
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        done = list(pool.map(_filter_alone, per_worker))
+    filter_s = max(sp for sp, _ in done)
+    samples = sum(n for _, n in done)
+    return {"runs": runs, "workers": workers, "samples": samples,
+            "campaign_wall_s": round(wall, 2), "filter_alone_s": round(filter_s, 2),
+            "ratio": round(wall / filter_s, 2), "failed": int(res.failed),
+            "campaign_samples_per_s": round(samples / wall), "target_ratio": 3.0,
+            "met": wall / filter_s <= 3.0}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=1000)
@@ -79,6 +136,8 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     ap.add_argument("--skip-local", action="store_true")
     ap.add_argument("--skip-dask", action="store_true")
+    ap.add_argument("--imu-runs", type=int, default=0,
+                    help="also an imu-handheld campaign of this many runs vs its filter")
     args = ap.parse_args()
     tmp = tempfile.TemporaryDirectory() if args.out is None else None
     out = pathlib.Path(args.out or tmp.name)
@@ -89,6 +148,8 @@ def main() -> None:
         result["local"] = bench_local(args.runs, args.workers, out)
     if not args.skip_dask:
         result["dask"] = bench_dask(args.dask_runs, out)
+    if args.imu_runs:
+        result["imu"] = bench_imu(args.imu_runs, args.workers, out)
     result["load_avg_end"] = os.getloadavg()
     print(json.dumps(result, indent=1))
     (out / "bench_campaign.json").write_text(json.dumps(result, indent=1))

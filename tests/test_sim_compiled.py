@@ -135,3 +135,14 @@ def test_noise_and_bias_statistics():
     assert abs(walk.var(axis=0).mean() / (p.bias_rw**2 * t_end) - 1) < 0.6
     b0 = bias[:, 0]
     assert abs(b0.std() / p.gyro_bias_std - 1) < 0.3    # 120 draws: 6.5 % standard error
+
+
+def test_bench_reports_simulated_samples_per_second():
+    """``gnomon bench --json``'s ``simulation`` entry (speed measured, not asserted)."""
+    from gnomon.speed import run_simulation, simulation_line
+
+    sim = run_simulation(runs=3, duration_s=2.0, repeats=2)
+    assert set(sim) == {"samples_per_s", "runs", "samples_timed"}
+    assert sim["runs"] == 3 and sim["samples_timed"] == 3 * 201 and sim["samples_per_s"] > 0
+    assert "million simulated samples/s" in simulation_line({"simulation": sim})
+    assert simulation_line({}) == ""

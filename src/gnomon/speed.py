@@ -26,6 +26,11 @@ installed VQF's ``update`` and ``BasicVQF``'s (C++ through its Python binding) a
 imufusion's ``Ahrs.update`` (C); µs per call, median over interleaved rounds, with the
 ratio to VQF's ``update``.
 
+Simulation (``simulation``): simulated samples per second of the compiled, batched IMU
+simulator (``gnomon.simulation.ahrs.simulate_ahrs_batch``, as a campaign chunk calls it:
+``sim_runs`` runs of 120 s at 100 Hz with 8 truth substeps, each run's random numbers
+drawn by its own generator), median of ``repeats`` calls, compilation excluded.
+
 Result (``gnomon bench --json``)::
 
     {"samples": int, "repeats": int,
@@ -33,6 +38,7 @@ Result (``gnomon bench --json``)::
                         "samples_timed": int}},
      "per_sample": {NAME: {"us_per_update": float, "ratio_to_vqf_update": float,
                            "samples_timed": int}},
+     "simulation": {"samples_per_s": float, "runs": int, "samples_timed": int},
      "machine": {"cpu_count": int, "python": str, "processor": str,
                  "freed_memory_reused": bool}}
 """
@@ -51,7 +57,8 @@ import numpy as np
 
 from gnomon.progress import Progress
 
-__all__ = ["run_bench", "run_per_sample", "markdown_table", "per_sample_table"]
+__all__ = ["run_bench", "run_per_sample", "run_simulation", "markdown_table", "per_sample_table",
+           "simulation_line"]
 
 _IMU_NEEDS = {"gyro", "accel", "mag"}
 
@@ -195,13 +202,33 @@ def run_per_sample(rec, samples: int = 20_000, repeats: int = 5, seed: int = 0) 
                    "samples_timed": n} for name, v in us.items()}
 
 
+def run_simulation(runs: int = 25, duration_s: float = 120.0, repeats: int = 5,
+                   seed: int = 0) -> dict:
+    """Simulated samples per second of ``simulate_ahrs_batch`` (module docstring):
+    ``{"samples_per_s", "runs", "samples_timed"}``."""
+    from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs_batch
+
+    p = AhrsSimParams(duration_s=duration_s)
+    simulate_ahrs_batch(p, [np.random.default_rng(seed)])   # warm-up: compilation, caches
+    times, n = [], 0
+    for _ in range(repeats):
+        rngs = [np.random.default_rng(seed + r) for r in range(runs)]
+        t0 = time.perf_counter()
+        recs = simulate_ahrs_batch(p, rngs)
+        times.append(time.perf_counter() - t0)
+        n = sum(len(r) for r in recs)
+        del recs
+    return {"samples_per_s": n / float(np.median(times)), "runs": runs, "samples_timed": n}
+
+
 def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
               quick: bool = False, progress: bool = False, seed: int = 0,
               per_sample_samples: int = 20_000) -> dict:
     """Time every method (see module docstring); ``quick`` uses 200,000 samples, 3 repeats
     (and 5,000 per-sample calls).
 
-    ``seed`` fixes the random order of the methods in each round.
+    ``seed`` fixes the random order of the methods in each round. The simulation speed
+    (``simulation``): 25 runs of 120 s (quick: 8 of 30 s).
     """
     if quick:
         samples, repeats = min(samples, 200_000), min(repeats, 3)
@@ -234,8 +261,11 @@ def run_bench(samples: int = 1_000_000, repeats: int = 5, runs: int = 1000,
                for name, rate in rates.items()}
     with _freed_memory_kept():
         per_sample = run_per_sample(rec, per_sample_samples, repeats, seed)
+    with _freed_memory_kept():
+        simulation = (run_simulation(8, 30.0, repeats, seed) if quick
+                      else run_simulation(25, 120.0, repeats, seed))
     return {"samples": len(rec), "repeats": repeats, "results": results,
-            "per_sample": per_sample,
+            "per_sample": per_sample, "simulation": simulation,
             "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
                         "processor": platform.processor() or platform.machine(),
                         "freed_memory_reused": keeps_memory}}
@@ -279,6 +309,16 @@ def markdown_table(res: dict) -> str:
         lines.append(f"| {name} | {r['samples_per_s'] / 1e6:.2f} | "
                      f"{r['ratio_to_vqf_batch']:.2f} |")
     return "\n".join(lines)
+
+
+def simulation_line(res: dict) -> str:
+    """The simulation speed as one sentence ("" when the result has none)."""
+    sim = res.get("simulation")
+    if not sim:
+        return ""
+    return (f"Simulation (`simulate_ahrs_batch`, {sim['runs']} runs, "
+            f"{sim['samples_timed']:,} samples): "
+            f"{sim['samples_per_s'] / 1e6:.2f} million simulated samples/s.")
 
 
 def per_sample_table(res: dict) -> str:

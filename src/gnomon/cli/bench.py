@@ -18,7 +18,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     """``gnomon.speed.run_bench(samples, repeats, runs, quick)``."""
-    from gnomon.speed import markdown_table, per_sample_table, run_bench
+    from gnomon.speed import markdown_table, per_sample_table, run_bench, simulation_line
 
     res = run_bench(samples=args.samples, repeats=args.repeats, runs=args.runs, quick=args.quick,
                     progress=progress_wanted(args))
@@ -28,4 +28,6 @@ def run(args) -> int:
         print(markdown_table(res))
         print()
         print(per_sample_table(res))
+        print()
+        print(simulation_line(res))
     return 0
