@@ -68,10 +68,12 @@ def _kernel(n, dt, substeps, f, ph, amp, q0, sigma, rng=None, runs=1, m_n=(0.0, 
     gyro, bias, accel, mag = draws
     q = np.empty((runs, n, 4))
     w = np.empty((runs, n, 3))
+    def per_run(a):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), (runs, len(a))))
     ahrs_batch(t, dt, substeps, 0.0, np.array([0.0, np.inf]), tile(f), tile(ph), tile(amp),
-               np.ascontiguousarray(np.broadcast_to(q0, (runs, 4))), np.array([0.0, 0.0, 9.81]),
-               none, none, none, np.asarray(m_n, float), 0.0, none, none, none,
-               np.zeros((runs, 3)), np.asarray(sigma, float), gyro, bias, accel, mag, q, w)
+               per_run(q0), per_run([0.0, 0.0, 9.81]), none, none, none, per_run(m_n),
+               np.zeros(runs), none, none, none, np.zeros((runs, 3)), per_run(sigma),
+               gyro, bias, accel, mag, q, w)
     return t, gyro, bias, accel, mag, q, w
 
 
@@ -146,3 +148,27 @@ def test_bench_reports_simulated_samples_per_second():
     assert sim["runs"] == 3 and sim["samples_timed"] == 3 * 201 and sim["samples_per_s"] > 0
     assert "million simulated samples/s" in simulation_line({"simulation": sim})
     assert simulation_line({}) == ""
+
+
+def test_runs_with_their_own_parameters_in_one_batch():
+    """Noise levels, biases, rates and the field may differ per run; the time base may
+    not (InputError)."""
+    from gnomon.errors import InputError
+
+    base = AhrsSimParams(duration_s=5.0, linear_accel_rms=1.0)
+    ps = [base, AhrsSimParams(duration_s=5.0, linear_accel_rms=3.0, gyro_noise=1e-3,
+                              accel_noise=0.1, field_uT=30.0, inclination_deg=20.0,
+                              rate_rms=1.5, rate_band_hz=(0.1, 1.0), gravity=9.78),
+          base]
+    recs = simulate_ahrs_batch(ps, [np.random.default_rng(s) for s in (1, 2, 3)])
+    for r, (p, s) in enumerate(zip(ps, (1, 2, 3), strict=True)):
+        ref = simulate_ahrs_reference(p, np.random.default_rng(s))
+        np.testing.assert_allclose(recs[r].gyro, ref.gyro, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(recs[r].accel, ref.accel, rtol=0, atol=1e-11)
+        np.testing.assert_allclose(recs[r].mag, ref.mag, rtol=0, atol=1e-10)
+    with pytest.raises(InputError, match="must share"):
+        simulate_ahrs_batch([base, AhrsSimParams(duration_s=6.0, linear_accel_rms=1.0)],
+                            [np.random.default_rng(1), np.random.default_rng(2)])
+    with pytest.raises(InputError, match="must share"):
+        simulate_ahrs_batch([base, AhrsSimParams(duration_s=5.0)],
+                            [np.random.default_rng(1), np.random.default_rng(2)])

@@ -102,36 +102,38 @@ def _imu_samples(r0, nb, k0, count, qbuf, wbuf, abuf, dbuf, acc_n, m_n, bias0, s
     :func:`ahrs_batch`) from the block's buffers: ``qbuf`` (C, 4, BLOCK) ``q_nb``,
     ``wbuf`` (C, 3 BLOCK) the true rate read, ``abuf``, ``dbuf`` (C, 3 BLOCK) the linear
     acceleration (m/s²) and the field disturbance (µT) in n; ``walk`` (3, BLOCK) the
-    bias random walk so far (advanced here)."""
+    bias random walk so far (advanced here); ``acc_n``, ``m_n`` (R, 3), ``sigma`` (R, 4)
+    per run."""
     for b in range(nb):
         r = r0 + b
+        s_rw, s_gyro, s_acc, s_mag = sigma[r, 0], sigma[r, 1], sigma[r, 2], sigma[r, 3]
+        a0x, a0y, a0z = acc_n[r, 0], acc_n[r, 1], acc_n[r, 2]
+        m0x, m0y, m0z = m_n[r, 0], m_n[r, 1], m_n[r, 2]
         wx, wy, wz = walk[0, b], walk[1, b], walk[2, b]
         for kk in range(count):
             k = k0 + kk
             qw, qx, qy, qz = qbuf[kk, 0, b], qbuf[kk, 1, b], qbuf[kk, 2, b], qbuf[kk, 3, b]
             q_nb[r, k, 0], q_nb[r, k, 1], q_nb[r, k, 2], q_nb[r, k, 3] = qw, qx, qy, qz
-            wx += sigma[0] * bias[r, k, 0]
-            wy += sigma[0] * bias[r, k, 1]
-            wz += sigma[0] * bias[r, k, 2]
+            wx += s_rw * bias[r, k, 0]
+            wy += s_rw * bias[r, k, 1]
+            wz += s_rw * bias[r, k, 2]
             bx, by, bz = bias0[r, 0] + wx, bias0[r, 1] + wy, bias0[r, 2] + wz
             bias[r, k, 0], bias[r, k, 1], bias[r, k, 2] = bx, by, bz
             gx, gy, gz = wbuf[kk, b], wbuf[kk, BLOCK + b], wbuf[kk, 2 * BLOCK + b]
             w_true[r, k, 0], w_true[r, k, 1], w_true[r, k, 2] = gx, gy, gz
-            gyro[r, k, 0] = (gx + bx) + sigma[1] * gyro[r, k, 0]
-            gyro[r, k, 1] = (gy + by) + sigma[1] * gyro[r, k, 1]
-            gyro[r, k, 2] = (gz + bz) + sigma[1] * gyro[r, k, 2]
-            ax, ay, az = rotate_inv(qw, qx, qy, qz, acc_n[0] + abuf[kk, b],
-                                    acc_n[1] + abuf[kk, BLOCK + b],
-                                    acc_n[2] + abuf[kk, 2 * BLOCK + b])
-            accel[r, k, 0] = ax + sigma[2] * accel[r, k, 0]
-            accel[r, k, 1] = ay + sigma[2] * accel[r, k, 1]
-            accel[r, k, 2] = az + sigma[2] * accel[r, k, 2]
-            mx, my, mz = rotate_inv(qw, qx, qy, qz, m_n[0] + dbuf[kk, b],
-                                    m_n[1] + dbuf[kk, BLOCK + b],
-                                    m_n[2] + dbuf[kk, 2 * BLOCK + b])
-            mag[r, k, 0] = mx + sigma[3] * mag[r, k, 0]
-            mag[r, k, 1] = my + sigma[3] * mag[r, k, 1]
-            mag[r, k, 2] = mz + sigma[3] * mag[r, k, 2]
+            gyro[r, k, 0] = (gx + bx) + s_gyro * gyro[r, k, 0]
+            gyro[r, k, 1] = (gy + by) + s_gyro * gyro[r, k, 1]
+            gyro[r, k, 2] = (gz + bz) + s_gyro * gyro[r, k, 2]
+            ax, ay, az = rotate_inv(qw, qx, qy, qz, a0x + abuf[kk, b],
+                                    a0y + abuf[kk, BLOCK + b], a0z + abuf[kk, 2 * BLOCK + b])
+            accel[r, k, 0] = ax + s_acc * accel[r, k, 0]
+            accel[r, k, 1] = ay + s_acc * accel[r, k, 1]
+            accel[r, k, 2] = az + s_acc * accel[r, k, 2]
+            mx, my, mz = rotate_inv(qw, qx, qy, qz, m0x + dbuf[kk, b],
+                                    m0y + dbuf[kk, BLOCK + b], m0z + dbuf[kk, 2 * BLOCK + b])
+            mag[r, k, 0] = mx + s_mag * mag[r, k, 0]
+            mag[r, k, 1] = my + s_mag * mag[r, k, 1]
+            mag[r, k, 2] = mz + s_mag * mag[r, k, 2]
         walk[0, b], walk[1, b], walk[2, b] = wx, wy, wz
 
 
@@ -160,9 +162,9 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
     * ``rate_f``, ``rate_ph``, ``rate_amp`` (R, H, 3): Hz, rad, rad/s of ``w_b``;
       ``acc_*`` (R, H, 3) (amplitude m/s²) of ``a_lin``; ``dist_*`` (R, H, 3) of the
       direction of ``d`` (H = 0: no such term).
-    * ``q0`` (R, 4): ``q_nb`` at ``t[0]``; ``acc_n`` (3,) m/s² the specific force at rest
-      in n (``[0, 0, g]``); ``m_n`` (3,) µT the field in n; ``dist_uT`` µT.
-    * ``bias0`` (R, 3) rad/s: the constant gyro bias; ``sigma`` (4,): the standard
+    * ``q0`` (R, 4): ``q_nb`` at ``t[0]``; ``acc_n`` (R, 3) m/s² the specific force at
+      rest in n (``[0, 0, g]``); ``m_n`` (R, 3) µT the field in n; ``dist_uT`` (R,) µT.
+    * ``bias0`` (R, 3) rad/s: the constant gyro bias; ``sigma`` (R, 4): the standard
       deviations per sample of the bias random-walk step (rad/s), the gyro noise
       (rad/s), the accelerometer noise (m/s²), the magnetometer noise (µT).
     * ``gyro``, ``bias``, ``accel``, ``mag`` (R, N, 3): on entry standard normal draws
@@ -231,7 +233,7 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
                 for b in range(BLOCK):
                     dx, dy, dz = dvec[b], dvec[BLOCK + b], dvec[2 * BLOCK + b]
                     norm = max(math.sqrt(dx * dx + dy * dy + dz * dz), 1e-12)
-                    g = dist_uT / norm if active else 0.0
+                    g = dist_uT[r0 + b] / norm if (active and b < nb) else 0.0
                     dbuf[kk, b], dbuf[kk, BLOCK + b], dbuf[kk, 2 * BLOCK + b] = (
                         dx * g, dy * g, dz * g)
             # sample k into the buffers; written out every chunk

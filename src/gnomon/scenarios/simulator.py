@@ -306,34 +306,31 @@ def simulate_many(scenarios, seeds) -> list:
     """``[simulate(scenarios[k], seeds[k]) for k]``, batched: a ``Recording`` per run, or
     the exception that failed that run.
 
-    The ``kind: imu`` runs that share their scenario (all but the seed) are simulated in
-    one call (``gnomon.simulation.ahrs.simulate_ahrs_batch``: each run's draws by its own
-    generator, the rest compiled for all of them); the others one by one. Each run equals
-    its ``simulate`` (the same function computes it)."""
-    import json
-
+    The ``kind: imu`` runs that share their time base and truth integration
+    (``gnomon.simulation.ahrs.batch_key``: noise levels, biases, rates, the field may
+    differ) are simulated in one call (``simulate_ahrs_batch``: each run's draws by its
+    own generator, the rest compiled for all of them); the others one by one. Each run
+    equals its ``simulate`` (the same function computes it)."""
     import gnomon.scenarios as scenarios_mod
+    from gnomon.simulation.ahrs import batch_key, simulate_ahrs_batch
 
     out: list = [None] * len(scenarios)
     groups: dict = {}
     for k, (sc, seed) in enumerate(zip(scenarios, seeds, strict=True)):
-        if isinstance(sc, scenarios_mod.Scenario) and sc.config["kind"] == "imu":
-            key = json.dumps({a: b for a, b in sc.config.items() if a != "seed"},
-                             sort_keys=True, default=str)
-            groups.setdefault(key, []).append(k)
-            continue
         try:
+            if isinstance(sc, scenarios_mod.Scenario) and sc.config["kind"] == "imu":
+                p = _imu_params(sc.config)
+                s = sc.config["seed"] if seed is None else seed
+                groups.setdefault(batch_key(p), []).append((k, p, int(s)))
+                continue
             out[k] = scenarios_mod.simulate(sc, rng_seed=seed)
         except Exception as err:  # noqa: BLE001 - this run fails, the others go on
             out[k] = err
-    for ks in groups.values():
+    for items in groups.values():
+        ks = [k for k, _, _ in items]
         try:
-            from gnomon.simulation.ahrs import simulate_ahrs_batch
-
-            recs = simulate_ahrs_batch(
-                _imu_params(scenarios[ks[0]].config),
-                [np.random.default_rng(int(scenarios[k].config["seed"] if seeds[k] is None
-                                           else seeds[k])) for k in ks])
+            recs = simulate_ahrs_batch([p for _, p, _ in items],
+                                       [np.random.default_rng(s) for _, _, s in items])
         except Exception:  # noqa: BLE001 - then one at a time, to fail only the bad one
             recs = []
             for k in ks:

@@ -48,8 +48,8 @@ from gnomon.errors import InputError
 from gnomon.recording import Recording
 from gnomon.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
 
-__all__ = ["AhrsSimParams", "simulate_ahrs", "simulate_ahrs_batch", "simulate_ahrs_reference",
-           "smooth_random_signal"]
+__all__ = ["AhrsSimParams", "SHARED_IN_BATCH", "batch_key", "simulate_ahrs", "simulate_ahrs_batch",
+           "simulate_ahrs_reference", "smooth_random_signal"]
 
 
 @dataclass(frozen=True)
@@ -126,26 +126,54 @@ def simulate_ahrs(params: AhrsSimParams | None, rng: np.random.Generator) -> Rec
     return simulate_ahrs_batch(params, [rng])[0]
 
 
-def simulate_ahrs_batch(params: AhrsSimParams | None,
-                        rngs: list[np.random.Generator]) -> list[Recording]:
-    """R runs of the same scenario, one generator each: a ``Recording`` per run.
+#: the parameters the runs of one simulate_ahrs_batch call must share (the time base,
+#: the truth integration, and which optional terms exist); the others may differ per run
+SHARED_IN_BATCH = ("duration_s", "rate_hz", "substeps", "rest_s", "n_harmonics",
+                   "disturbance_window_s")
 
-    Run ``r`` equals ``simulate_ahrs(params, rngs[r])`` and, to rounding,
-    ``simulate_ahrs_reference(params, rngs[r])`` (same draws from the same generator).
-    Each run's random numbers are drawn in bulk by its generator; the truth attitude
-    and the sensors of all runs are one compiled call
+
+def batch_key(p: AhrsSimParams) -> tuple:
+    """Runs whose parameters have the same key can be simulated in one
+    :func:`simulate_ahrs_batch` call."""
+    return (*(getattr(p, k) for k in SHARED_IN_BATCH), p.linear_accel_rms > 0,
+            p.mag_disturbance_uT > 0)
+
+
+def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recording]:
+    """R runs, one generator each: a ``Recording`` per run.
+
+    ``params``: one ``AhrsSimParams`` (None: defaults) for every run, or one per run, all
+    with the same :func:`batch_key` (the time base, the substeps, the rest and the
+    disturbance window, the number of harmonics and which optional terms exist; noise
+    levels, biases, rates, the field and the amplitudes may differ). Run ``r`` equals
+    ``simulate_ahrs(params[r], rngs[r])`` and, to rounding,
+    ``simulate_ahrs_reference(params[r], rngs[r])`` (same draws from the same
+    generator). Each run's random numbers are drawn in bulk by its generator; the truth
+    attitude and the sensors of all runs are one compiled call
     (:func:`gnomon.kernels.simulate.ahrs_batch`). The recordings' arrays are views into
     shared (R, N, 3) / (R, N, 4) arrays (each C-contiguous).
     """
     from gnomon.kernels.simulate import ahrs_batch
 
-    p = params or AhrsSimParams()
-    p.validate()
     rngs = list(rngs)
     if not rngs:
         return []
+    if params is None or isinstance(params, AhrsSimParams):
+        ps = [params or AhrsSimParams()] * len(rngs)
+    else:
+        ps = [q or AhrsSimParams() for q in params]
+        if len(ps) != len(rngs):
+            raise InputError(f"{len(ps)} parameter sets for {len(rngs)} generators",
+                             field="params")
+    for q in set(ps):
+        q.validate()
+    if len({batch_key(q) for q in ps}) > 1:
+        raise InputError(f"runs of one batch must share {', '.join(SHARED_IN_BATCH)} "
+                         "and which of linear_accel_rms, mag_disturbance_uT are > 0",
+                         field="params")
     if not all(isinstance(g, np.random.Generator) for g in rngs):
         raise TypeError("rng must be a numpy.random.Generator")
+    p = ps[0]
     fs = p.rate_hz
     n = int(round(p.duration_s * fs)) + 1
     t = np.arange(n) / fs
@@ -158,34 +186,40 @@ def simulate_ahrs_batch(params: AhrsSimParams | None,
     dist = np.zeros((3, runs, n_dist, 3))
     rpy0 = np.empty((runs, 3))
     bias0 = np.empty((runs, 3))
+    acc_n = np.zeros((runs, 3))
+    m_n = np.empty((runs, 3))
+    dist_uT = np.empty(runs)
+    sigma = np.empty((runs, 4))
     # standard normal draws, turned into the samples in place by the kernel
     gyro, bias, accel, mag = (np.empty((runs, n, 3)) for _ in range(4))
-    for r, rng in enumerate(rngs):      # the draws of simulate_ahrs_reference, in its order
-        rate[:, r] = _harmonics(rng, p.rate_rms, p.rate_band_hz, p.n_harmonics)
+    for r, (rng, q) in enumerate(zip(rngs, ps, strict=True)):
+        # the draws of simulate_ahrs_reference, in its order
+        rate[:, r] = _harmonics(rng, q.rate_rms, q.rate_band_hz, q.n_harmonics)
         rpy0[r] = rng.uniform([-0.3, -0.3, -np.pi], [0.3, 0.3, np.pi])
-        bias0[r] = rng.normal(0, p.gyro_bias_std, 3)
+        bias0[r] = rng.normal(0, q.gyro_bias_std, 3)
         rng.standard_normal(out=bias[r])
         rng.standard_normal(out=gyro[r])
         if n_lin:
-            lin[:, r] = _harmonics(rng, p.linear_accel_rms, (0.1, 1.0), n_lin)
+            lin[:, r] = _harmonics(rng, q.linear_accel_rms, (0.1, 1.0), n_lin)
         rng.standard_normal(out=accel[r])
         if n_dist:
             dist[:, r] = _harmonics(rng, 1.0, (0.01, 0.1), n_dist)
         rng.standard_normal(out=mag[r])
+        inc = np.radians(q.inclination_deg)
+        m_n[r] = [0.0, q.field_uT * np.cos(inc), -q.field_uT * np.sin(inc)]
+        acc_n[r, 2] = q.gravity
+        dist_uT[r] = q.mag_disturbance_uT
+        sigma[r] = [q.bias_rw * np.sqrt(dt), q.gyro_noise * np.sqrt(fs), q.accel_noise,
+                    q.mag_noise_uT]
     q0 = np.ascontiguousarray(quat_from_euler(rpy0))
-    inc = np.radians(p.inclination_deg)
-    m_n = np.array([0.0, p.field_uT * np.cos(inc), -p.field_uT * np.sin(inc)])
-    sigma = np.array([p.bias_rw * np.sqrt(dt), p.gyro_noise * np.sqrt(fs), p.accel_noise,
-                      p.mag_noise_uT])
-    q = np.empty((runs, n, 4))
+    q_nb = np.empty((runs, n, 4))
     w_true = np.empty((runs, n, 3))
     ahrs_batch(t, dt, int(p.substeps), float(p.rest_s),
                np.array(p.disturbance_window_s, dtype=float), rate[0], rate[1], rate[2], q0,
-               np.array([0.0, 0.0, p.gravity]), lin[0], lin[1], lin[2], m_n,
-               float(p.mag_disturbance_uT), dist[0], dist[1], dist[2], bias0, sigma,
-               gyro, bias, accel, mag, q, w_true)
+               acc_n, lin[0], lin[1], lin[2], m_n, dist_uT, dist[0], dist[1], dist[2],
+               bias0, sigma, gyro, bias, accel, mag, q_nb, w_true)
     return [Recording(t=t, gyro=gyro[r], accel=accel[r], mag=mag[r], mag_unit="uT",
-                      q_true=q[r], frames={"reference": "ENU", "body": "body"},
+                      q_true=q_nb[r], frames={"reference": "ENU", "body": "body"},
                       source="gnomon.simulation.ahrs",
                       extra={"gyro_bias_rad_s": bias[r], "w_true_rad_s": w_true[r]})
             for r in range(runs)]
