@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnomon.scenarios import load_scenario
+from gnomon.scenarios import load_scenario, simulate_many
 from gnomon.scenarios import simulator as S
 
 
@@ -78,13 +78,13 @@ def test_simulate_many_equals_simulate():
     sc = _short()
     scenarios = [imu, sc, imu2, imu, imu]
     seeds = [4, 5, 6, None, 2**63 + 7]
-    out = S.simulate_many(scenarios, seeds)
+    out = simulate_many(scenarios, seeds)
     for k, (scn, seed) in enumerate(zip(scenarios, seeds, strict=True)):
         one = S.simulate(scn, rng_seed=seed)
         np.testing.assert_array_equal(out[k].gyro, one.gyro)
         np.testing.assert_array_equal(out[k].q_true, one.q_true)
         np.testing.assert_array_equal(out[k].mag, one.mag)
-    bad = S.simulate_many([sc, "no-such-scenario"], [1, 2])
+    bad = simulate_many([sc, "no-such-scenario"], [1, 2])
     assert isinstance(bad[1], Exception) and bad[0].gyro.shape == (601, 3)
 
 
@@ -97,7 +97,7 @@ def test_score_runs_equals_the_metrics():
     from gnomon.metrics import score_run, score_run_budget
 
     imu = load_scenario("imu-handheld").replace({"duration_s": 20.0})
-    recs = S.simulate_many([imu] * 4, [1, 2, 3, 4])
+    recs = simulate_many([imu] * 4, [1, 2, 3, 4])
     qs = Mahony.run_many(recs, Mahony.Params())
     qs[2] = -qs[2]                                  # the sign of q does not matter
     sc = S.simulate(_short(), rng_seed=1)

@@ -100,7 +100,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
     """The default task for the runs of a chunk, as one call (its batch form).
 
     ``scenarios``, ``params_list``, ``seeds``: one per run, as the run form takes them.
-    The runs are simulated together (:func:`gnomon.scenarios.simulator.simulate_many`:
+    The runs are simulated together (:func:`gnomon.scenarios.simulate_many`:
     the IMU runs of one scenario in one compiled call; each run as it would be alone).
     Filters with a batch-over-runs kernel (those that
     override ``Estimator.run_many``) get the runs that share the filter, its parameters
@@ -112,7 +112,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
     from gnomon.campaign.scoring import score_runs
     from gnomon.estimators import registry
     from gnomon.estimators.base import Estimator
-    from gnomon.scenarios.simulator import simulate_many
+    from gnomon.scenarios import simulate_many
 
     def batched(name):
         return registry.get(name).run_many.__func__ is not Estimator.run_many.__func__

@@ -25,7 +25,8 @@ import yaml
 from gnomon.errors import InputError
 from gnomon.scenarios.schema import KINDS, get_dotted, schema_of, set_dotted, validate
 
-__all__ = ["Scenario", "load_scenario", "list_presets", "simulate", "describe"]
+__all__ = ["Scenario", "load_scenario", "list_presets", "simulate", "simulate_many",
+           "describe"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,3 +135,46 @@ def simulate(scenario: Scenario | str | pathlib.Path, rng_seed: int | None = Non
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     return _simulate(scenario, rng_seed=rng_seed)
+
+
+def simulate_many(scenarios, seeds) -> list:
+    """``[simulate(scenarios[k], seeds[k]) for k]``, batched: a ``Recording`` per run, or
+    the exception that failed that run.
+
+    The ``kind: imu`` runs that share their time base and truth integration
+    (``gnomon.simulation.ahrs.batch_key``: noise levels, biases, rates, the field may
+    differ) are simulated in one call (``simulate_ahrs_batch``: each run's draws by its
+    own generator, the rest compiled for all of them); the others one by one. Each run
+    equals its ``simulate`` (the same function computes it)."""
+    import numpy as np
+
+    from gnomon.scenarios.simulator import _imu_params
+    from gnomon.simulation.ahrs import batch_key, simulate_ahrs_batch
+
+    out: list = [None] * len(scenarios)
+    groups: dict = {}
+    for k, (sc, seed) in enumerate(zip(scenarios, seeds, strict=True)):
+        try:
+            if isinstance(sc, Scenario) and sc.config["kind"] == "imu":
+                p = _imu_params(sc.config)
+                s = sc.config["seed"] if seed is None else seed
+                groups.setdefault(batch_key(p), []).append((k, p, int(s)))
+                continue
+            out[k] = simulate(sc, rng_seed=seed)
+        except Exception as err:  # noqa: BLE001 - this run fails, the others go on
+            out[k] = err
+    for items in groups.values():
+        ks = [k for k, _, _ in items]
+        try:
+            recs = simulate_ahrs_batch([p for _, p, _ in items],
+                                       [np.random.default_rng(s) for _, _, s in items])
+        except Exception:  # noqa: BLE001 - then one at a time, to fail only the bad one
+            recs = []
+            for k in ks:
+                try:
+                    recs.append(simulate(scenarios[k], rng_seed=seeds[k]))
+                except Exception as err:  # noqa: BLE001
+                    recs.append(err)
+        for k, rec in zip(ks, recs, strict=True):
+            out[k] = rec
+    return out

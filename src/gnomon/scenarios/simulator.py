@@ -66,7 +66,7 @@ from gnomon.sensors import (
     sun_sensor_model,
 )
 
-__all__ = ["build_orbit", "simulate", "simulate_imu", "simulate_many", "truth_of",
+__all__ = ["build_orbit", "simulate", "simulate_imu", "truth_of",
            "TRUTH_CACHE_SIZE"]
 
 _D2R = np.pi / 180.0
@@ -300,44 +300,3 @@ def simulate_imu(cfg: dict, seed: int) -> Recording:
     from gnomon.simulation.ahrs import simulate_ahrs
 
     return simulate_ahrs(_imu_params(cfg), np.random.default_rng(seed))
-
-
-def simulate_many(scenarios, seeds) -> list:
-    """``[simulate(scenarios[k], seeds[k]) for k]``, batched: a ``Recording`` per run, or
-    the exception that failed that run.
-
-    The ``kind: imu`` runs that share their time base and truth integration
-    (``gnomon.simulation.ahrs.batch_key``: noise levels, biases, rates, the field may
-    differ) are simulated in one call (``simulate_ahrs_batch``: each run's draws by its
-    own generator, the rest compiled for all of them); the others one by one. Each run
-    equals its ``simulate`` (the same function computes it)."""
-    import gnomon.scenarios as scenarios_mod
-    from gnomon.simulation.ahrs import batch_key, simulate_ahrs_batch
-
-    out: list = [None] * len(scenarios)
-    groups: dict = {}
-    for k, (sc, seed) in enumerate(zip(scenarios, seeds, strict=True)):
-        try:
-            if isinstance(sc, scenarios_mod.Scenario) and sc.config["kind"] == "imu":
-                p = _imu_params(sc.config)
-                s = sc.config["seed"] if seed is None else seed
-                groups.setdefault(batch_key(p), []).append((k, p, int(s)))
-                continue
-            out[k] = scenarios_mod.simulate(sc, rng_seed=seed)
-        except Exception as err:  # noqa: BLE001 - this run fails, the others go on
-            out[k] = err
-    for items in groups.values():
-        ks = [k for k, _, _ in items]
-        try:
-            recs = simulate_ahrs_batch([p for _, p, _ in items],
-                                       [np.random.default_rng(s) for _, _, s in items])
-        except Exception:  # noqa: BLE001 - then one at a time, to fail only the bad one
-            recs = []
-            for k in ks:
-                try:
-                    recs.append(scenarios_mod.simulate(scenarios[k], rng_seed=seeds[k]))
-                except Exception as err:  # noqa: BLE001
-                    recs.append(err)
-        for k, rec in zip(ks, recs, strict=True):
-            out[k] = rec
-    return out
