@@ -53,8 +53,11 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    from gnomon.kernels.compile_notice import compile_notice
+
     try:
-        return args.func(args)
+        with compile_notice():
+            return args.func(args)
     except InputError as e:
         print(f"gnomon: error: {e}", file=sys.stderr)
         return 2

@@ -741,7 +741,7 @@ class RobustAHRS(CompiledIMUUpdate, Estimator):
                "dist": np.empty(n, np.bool_), "acc_rate": np.empty(n), "k_mag": np.empty(n),
                "hi": np.empty((n, 3)), "flags": np.empty(n, np.uint8)}
         # strided views are fine for the kernel (no copy)
-        robust_ahrs_batch(dt, gyro, acc, mag, self.state, self.coefficients(),
+        robust_ahrs_batch(dt, gyro, acc, mag, self.state, record(self.coefficients()),
                           out["q"], out["bias"], out["rest"], out["dist"], out["acc_rate"],
                           out["k_mag"], out["hi"], out["flags"])
         f = out["flags"]

@@ -109,7 +109,7 @@ def pack_upper(P, row):
 
 
 # ---------------------------------------------------------------- forward: the filter
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _forward_loop(inputs, s, c, out, w, mode, scratch):
     """``gnomon.kernels.eskf._loop`` storing ``q⁺``, ``b⁺`` and ``P⁺`` (its other outputs
     are not needed here)."""
@@ -148,7 +148,7 @@ def forward_pass(inputs, state, c, out):
 
 
 # ---------------------------------------------------------------- backward: the RTS step
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def rts_core(P, Ps, d, wx, wy, wz, dt, qa, qb, M, Pm, L, invd, X, dx):
     """One RTS step on the error state for ``Φ = [A cI; 0 I]``, ``Q = diag(qa I, qb I)``.
 
@@ -242,7 +242,7 @@ def rts_core(P, Ps, d, wx, wy, wz, dt, qa, qb, M, Pm, L, invd, X, dx):
             Ps[j, i] = v
 
 
-@njit(inline="always", **_JIT)
+@njit(**_JIT)
 def _write_attitude(out, k, Ps):
     """``att_std`` (and ``att_cov`` when it has rows) of sample ``k`` from ``P_s,k``."""
     for i in range(3):

@@ -15,9 +15,11 @@ inclination-corrected frame 6 (``q_acc = q_6I``, z up) and ENU n
 (``q_nb = q_z(delta) ⊗ q_6b``). Units: rad, rad/s, m/s², s; the magnetometer in any
 one unit (the tests use µT).
 
-The step (``robust_ahrs_step``) calls the phases in order; each is a short function
-inlined into it (``inline="always"``), so the compiled step is still one function whose
-locals stay in registers:
+The step (``robust_ahrs_step``) calls the phases in order; each is a short compiled
+function of its own (``cache=True``; only the few-line helpers are ``inline="always"``):
+inlined into one function, the step took numba 58 s to compile on a 2-core machine, as
+separate functions 8 s, for a batch loop about 1.4x slower (still faster than VQF's C++
+``updateBatch``; ``gnomon/kernels/__init__.py`` says why):
 
 1. ``rest_gyro``: gyro low-pass and deviation (rest detection, gyro part);
 2. ``strapdown``: ``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` (and ``rest_turn``: the same
@@ -32,7 +34,8 @@ locals stay in registers:
    ``heading_gain`` → ``heading``: the magnetometer, heading only.
 
 The batch loop (``robust_ahrs_batch``) and the per-sample kernel of the filter's ``update``
-(``robust_ahrs_sample``, the coefficients as a record) run the same row (``_row``: the
+(``robust_ahrs_sample``) take the coefficients as a record (``gnomon.kernels.entry.record``)
+and run the same row, compiled once for both (``_row``: the
 step and ``q_nb``).
 
 The 3x3 matrices of a phase (``R_6b``, ``P``, ``S``) are row-major 9-tuples
@@ -73,28 +76,29 @@ BIAS_AT_LIMIT = 8  # written by the batch loop: a component of the bias at ``bia
 
 
 # ---------------------------------------------------------------- low-pass filters
-@njit(inline="always")
-def _mean_step(f, i, x, n, done, lp):
-    """Start-up of a low-pass: the running mean of component ``i``; ``done``: the mean
-    becomes the filter's steady state."""
-    f.z0[i] += x
-    y = f.z0[i] / n
+@njit(inline="always", error_model="numpy")
+def _mean_step(z0, z1, i, x, n, done, lp):
+    """Start-up of a low-pass: the running mean of component ``i`` (its sum in ``z0[i]``);
+    ``done``: the mean becomes the filter's steady state (``z0``, ``z1`` (k,) views of a
+    low-pass record's delay lines)."""
+    z0[i] += x
+    y = z0[i] / n
     if done:
-        f.z0[i] = y * (1.0 - lp.b0)
-        f.z1[i] = y * (lp.b2 - lp.a2)
+        z0[i] = y * (1.0 - lp.b0)
+        z1[i] = y * (lp.b2 - lp.a2)
     return y
 
 
-@njit(inline="always")
-def _filter_step(f, i, x, lp):
+@njit(inline="always", error_model="numpy")
+def _filter_step(z0, z1, i, x, lp):
     """One Butterworth step of component ``i`` (direct form II transposed)."""
-    y = lp.b0 * x + f.z0[i]
-    f.z0[i] = lp.b1 * x - lp.a1 * y + f.z1[i]
-    f.z1[i] = lp.b2 * x - lp.a2 * y
+    y = lp.b0 * x + z0[i]
+    z0[i] = lp.b1 * x - lp.a1 * y + z1[i]
+    z1[i] = lp.b2 * x - lp.a2 * y
     return y
 
 
-@njit(inline="always")
+@njit(inline="always", error_model="numpy")
 def _start(f, lp):
     """Count one start-up sample: ``(n, done)``."""
     n = f.n + 1
@@ -103,48 +107,47 @@ def _start(f, lp):
     return n, done
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def lowpass2(f, x0, x1, lp):
     """``LowPass`` ``lp`` of two values, state ``f`` (``LOWPASS_2``): the outputs."""
+    z0, z1 = f.z0, f.z1
     if f.n >= 0:
         n, done = _start(f, lp)
-        return _mean_step(f, 0, x0, n, done, lp), _mean_step(f, 1, x1, n, done, lp)
-    return _filter_step(f, 0, x0, lp), _filter_step(f, 1, x1, lp)
+        return _mean_step(z0, z1, 0, x0, n, done, lp), _mean_step(z0, z1, 1, x1, n, done, lp)
+    return _filter_step(z0, z1, 0, x0, lp), _filter_step(z0, z1, 1, x1, lp)
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
+def _lowpass3_lines(z0, z1, x0, x1, x2, n, done, lp):
+    """Three components on the delay lines ``z0``, ``z1`` (3,): the running mean while
+    ``n > 0`` (the ``n``-th start-up sample), the Butterworth step otherwise."""
+    if n > 0:
+        return (_mean_step(z0, z1, 0, x0, n, done, lp), _mean_step(z0, z1, 1, x1, n, done, lp),
+                _mean_step(z0, z1, 2, x2, n, done, lp))
+    return (_filter_step(z0, z1, 0, x0, lp), _filter_step(z0, z1, 1, x1, lp),
+            _filter_step(z0, z1, 2, x2, lp))
+
+
+@njit(cache=True, error_model="numpy")
 def lowpass3(f, x0, x1, x2, lp):
     """``LowPass`` ``lp`` of a 3-vector, state ``f`` (``LOWPASS_3``): the outputs."""
-    if f.n >= 0:
-        n, done = _start(f, lp)
-        return (_mean_step(f, 0, x0, n, done, lp), _mean_step(f, 1, x1, n, done, lp),
-                _mean_step(f, 2, x2, n, done, lp))
-    return _filter_step(f, 0, x0, lp), _filter_step(f, 1, x1, lp), _filter_step(f, 2, x2, lp)
+    n, done = _start(f, lp) if f.n >= 0 else (0, False)
+    return _lowpass3_lines(f.z0, f.z1, x0, x1, x2, n, done, lp)
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def lowpass33(f, a, lp):
     """``LowPass`` ``lp`` of a 3x3 matrix (row-major 9-tuple ``a``), state ``f``
-    (``LOWPASS_33``): the output as a 9-tuple."""
-    if f.n >= 0:
-        n, done = _start(f, lp)
-        return (_mean_step(f, (0, 0), a[0], n, done, lp),
-                _mean_step(f, (0, 1), a[1], n, done, lp),
-                _mean_step(f, (0, 2), a[2], n, done, lp),
-                _mean_step(f, (1, 0), a[3], n, done, lp),
-                _mean_step(f, (1, 1), a[4], n, done, lp),
-                _mean_step(f, (1, 2), a[5], n, done, lp),
-                _mean_step(f, (2, 0), a[6], n, done, lp),
-                _mean_step(f, (2, 1), a[7], n, done, lp),
-                _mean_step(f, (2, 2), a[8], n, done, lp))
-    return (_filter_step(f, (0, 0), a[0], lp), _filter_step(f, (0, 1), a[1], lp),
-            _filter_step(f, (0, 2), a[2], lp), _filter_step(f, (1, 0), a[3], lp),
-            _filter_step(f, (1, 1), a[4], lp), _filter_step(f, (1, 2), a[5], lp),
-            _filter_step(f, (2, 0), a[6], lp), _filter_step(f, (2, 1), a[7], lp),
-            _filter_step(f, (2, 2), a[8], lp))
+    (``LOWPASS_33``, a row of delay lines per matrix row): the output as a 9-tuple."""
+    n, done = _start(f, lp) if f.n >= 0 else (0, False)
+    z0, z1 = f.z0, f.z1
+    r0 = _lowpass3_lines(z0[0], z1[0], a[0], a[1], a[2], n, done, lp)
+    r1 = _lowpass3_lines(z0[1], z1[1], a[3], a[4], a[5], n, done, lp)
+    r2 = _lowpass3_lines(z0[2], z1[2], a[6], a[7], a[8], n, done, lp)
+    return r0[0], r0[1], r0[2], r1[0], r1[1], r1[2], r2[0], r2[1], r2[2]
 
 
-@njit(inline="always")
+@njit(inline="always", error_model="numpy")
 def wrap(a):
     """An angle difference (rad, within (-3π, 3π)) wrapped into [-π, π]."""
     if a > math.pi:
@@ -155,7 +158,7 @@ def wrap(a):
 
 
 # ---------------------------------------------------------------- 1. rest detection
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def rest_gyro(s, c, gx, gy, gz):
     """Gyro part of the rest detection: low-pass the rate (kept in ``s.gyro_lp``, the bias
     measurement at rest); a deviation above the threshold, or a low-passed rate beyond
@@ -169,7 +172,7 @@ def rest_gyro(s, c, gx, gy, gz):
         s.rest = False
 
 
-@njit(inline="always")
+@njit(inline="always", error_model="numpy")
 def _chord2(ax, ay, az, bx, by, bz):
     """Squared distance between the directions of two non-zero 3-vectors."""
     na = math.sqrt(ax * ax + ay * ay + az * az)
@@ -178,7 +181,7 @@ def _chord2(ax, ay, az, bx, by, bz):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def rest_begin(s, lx, ly, lz):
     """A rest candidacy begins at this accelerometer sample: keep the low-passed
     accelerometer ``l`` and magnetometer directions and start the gyro's rotation."""
@@ -191,7 +194,7 @@ def rest_begin(s, lx, ly, lz):
     q[0], q[1], q[2], q[3] = 1.0, 0.0, 0.0, 0.0
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def rest_turn(s, dt, gx, gy, gz):
     """During a rest candidacy, ``rest_q <- rest_q ⊗ exp((ω - b) dt)``: the rotation the
     gyro (minus the bias estimate) says the body made since it began."""
@@ -202,7 +205,7 @@ def rest_turn(s, dt, gx, gy, gz):
             (gz - s.bias[2]) * dt, True, True)
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def gyro_says_turned(s, c):
     """Whether the gyro's rotation since the candidacy began (``rest_q``) would have turned
     the accelerometer's direction, or the magnetometer's (its hard-iron offset removed), by
@@ -221,7 +224,7 @@ def gyro_says_turned(s, c):
     return False
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
     threshold of the low-passed specific force while its direction stays within
@@ -253,7 +256,7 @@ def rest_acc(s, c, ax, ay, az):
             s.rest = True
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def rest_mag(s, c, mx, my, mz):
     """Magnetometer part of the rest detection: low-pass the field in the body frame; a
     direction farther than ``rest_th_turn`` from the one the candidacy began with ends
@@ -270,7 +273,7 @@ def rest_mag(s, c, mx, my, mz):
 
 
 # ---------------------------------------------------------------- 2. strapdown
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def strapdown(s, dt, gx, gy, gz):
     """``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` over the actual interval ``dt`` (s); adds
     ``|ω - b|² dt`` to ``s.rot2`` (the heading KF's rotation noise)."""
@@ -287,7 +290,7 @@ def strapdown(s, dt, gx, gy, gz):
 
 
 # ---------------------------------------------------------------- 3. inclination
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def inclination(s, c, ax, ay, az):
     """Low-pass the specific force in frame I, see it in frame 6 and turn ``q_acc`` by
     the rotation that takes it to up. Returns ``(fx, fy, ok)``: the normalised filtered
@@ -316,7 +319,7 @@ def inclination(s, c, ax, ay, az):
 
 
 # ---------------------------------------------------------------- 4. gyro bias
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def bias_kf(s, c, R, fx, fy, have_f):
     """Gyro-bias Kalman filter on every ``bias_every``-th accelerometer sample.
 
@@ -347,7 +350,7 @@ def bias_kf(s, c, R, fx, fy, have_f):
                     c.huber)
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def bias_update(s, c, H, e0, e1, e2, w0, w1, w2, ei):
     """Kalman update of the bias with the innovation ``e = y - H b``, ``H`` a 9-tuple,
     measurement variances ``w`` (diagonal): ``K = P Hᵀ (H P Hᵀ + W)⁻¹``, ``b += K e``
@@ -386,7 +389,7 @@ def bias_update(s, c, H, e0, e1, e2, w0, w1, w2, ei):
 
 
 # ---------------------------------------------------------------- 5. magnetometer
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def mag_accumulate(s, c, R, mx, my, mz):
     """Add the field (hard-iron offset removed) seen in frame 6 to the block sum, and the
     raw field to the hard-iron block sums. Returns whether the block is complete (the
@@ -408,7 +411,7 @@ def mag_accumulate(s, c, R, mx, my, mz):
     return s.mag_count >= c.mag_every or s.k_mag_init == 1.0
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def hard_iron(s, c, R, cnt):
     """Fold the block of ``cnt`` samples into the weighted hard-iron sums (``R`` = R_6b at
     the block's end) and solve for the offset ``o`` (body).
@@ -448,7 +451,7 @@ def hard_iron(s, c, R, cnt):
     hi.o[0], hi.o[1], hi.o[2] = (o0, o1, o2) if fits else (0.0, 0.0, 0.0)
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def mag_disturbance(s, c, nm, dip):
     """Compare the low-passed norm and dip of the field with the learned reference: flag
     a disturbance outside the thresholds, clear it after ``mag_min_undisturbed_s``
@@ -470,7 +473,7 @@ def mag_disturbance(s, c, nm, dip):
     return cur_n, cur_d
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def new_field(s, c, cur_n, cur_d):
     """A new, steady field replaces the reference after ``mag_new_s`` of motion in it
     (``mag_new_first_s`` while there is no reference yet). Returns the soft de-weighting
@@ -500,7 +503,7 @@ def new_field(s, c, cur_n, cur_d):
     return 1.0
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def vertical_bias_var(s, R):
     """Variance (rad/s)² of the bias estimate about the vertical: ``uᵀ P u`` with ``u``
     the third row of ``R`` = R_6b (up in body coordinates)."""
@@ -512,7 +515,7 @@ def vertical_bias_var(s, R):
     return v
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def heading_gain(s, c, soft, p_bv):
     """The heading gain of this update: first-order ``k_mag`` or the heading KF's gain
     (its random walk raised by the vertical bias variance ``p_bv``, (rad/s)²); 0 while a
@@ -548,7 +551,7 @@ def heading_gain(s, c, soft, p_bv):
     return k
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def magnetometer(s, c, R, mx, my, mz):
     """Heading from the magnetometer ``m`` (body), ``R`` = R_6b: accumulate; on a complete
     block update the hard-iron offset, test for disturbances, turn ``delta`` towards the
@@ -591,7 +594,7 @@ def magnetometer(s, c, R, mx, my, mz):
 
 
 # ---------------------------------------------------------------- the step
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     """One sample in place on the state record ``s``: ``dt`` (s) since the last sample,
     gyro (rad/s), accelerometer (m/s²), magnetometer (body); a zero accelerometer or
@@ -626,7 +629,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     return flags, q6
 
 
-@njit(inline="always")
+@njit(cache=True, error_model="numpy")
 def _row(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     """One row of the batch loop (and the sample kernel): ``robust_ahrs_step`` on the state
     record ``s``, then ``q_nb = q_z(delta) ⊗ q_6b``. Returns ``(flags, q_nb)``: the step's
@@ -650,6 +653,7 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
     step's and ``BIAS_AT_LIMIT``).
     """
     s = state[0]
+    c = c[0]
     for i in range(dt.shape[0]):
         f, q = _row(s, c, dt[i], gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1],
                     acc[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])

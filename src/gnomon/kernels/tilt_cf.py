@@ -68,7 +68,7 @@ def predict(s, dt, gx, gy, gz):
                                         (gy - s.bias[1]) * dt, (gz - s.bias[2]) * dt, True, True)
 
 
-@njit(inline="always", error_model="numpy")
+@njit(cache=True, error_model="numpy")
 def correct_accel(s, c, dt, ax, ay, az):
     """Accelerometer phase. Rotation vector ``e`` (body) taking the measured up direction
     ``a/|a|`` onto the predicted ``R_nbᵀ e_z``; ``q ← q ⊗ exp(h/(T + h) e)``,
