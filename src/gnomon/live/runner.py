@@ -157,6 +157,9 @@ def run_live(source, filt, sinks=(), *, duration_s: float | None = None,
                         break
                 continue
             if item is None:
+                if stop.is_set():  # the signal closed the source before this loop saw it
+                    run.ended_by = "signal"
+                    break
                 why = getattr(source, "ended", "")  # a source that gave up says why
                 run.ended_by = "error: " + counts["error"] if "error" in counts \
                     else "end of stream" + (f": {why}" if why else "")
