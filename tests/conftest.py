@@ -13,6 +13,15 @@ def pytest_configure(config):
     drop_stale_caches()
 
 
+def pytest_collection_modifyitems(config, items):
+    """A slow test says why (``@pytest.mark.slow(reason="...")``): the quick tier,
+    ``pytest -m "not slow"``, leaves it out, and its reason says what it costs."""
+    for item in items:
+        for mark in item.iter_markers("slow"):
+            if not mark.kwargs.get("reason"):
+                raise pytest.UsageError(f"{item.nodeid}: @pytest.mark.slow needs a reason=")
+
+
 G = 9.81
 FIELD_ENU_UT = np.array([0.0, 20.0, -45.0])  # north and down, inclination ~66 deg
 

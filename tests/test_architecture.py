@@ -4,6 +4,7 @@ import higher ones (``docs/architecture.md``). Read from the source with ``ast``
 closes a cycle is still a cycle for the reader)."""
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -46,6 +47,7 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
     return out
 
 
+@functools.cache  # one parse of the package for every test here
 def _graph() -> dict[str, set[str]]:
     mods = _modules()
     known = set(mods)

@@ -64,6 +64,7 @@ def _simulated(lag_s: float, rotvec_deg, seed: int = 1):
     return rec, dataclasses.replace(rec, q_true=quat_at(t_ref, q_ref, rec.t)), q_bs
 
 
+@pytest.mark.slow(reason="6 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("lag_s,rotvec_deg", [(0.0237, [0.8, -0.6, 1.1]),
                                               (-0.0183, [-1.2, 0.4, -0.3])])
 def test_alignment_recovers_a_known_lag_and_body_misalignment(lag_s, rotvec_deg):
@@ -286,6 +287,7 @@ def test_onboard_anchor_is_the_device_estimate(multi_rate):
 
 
 # ------------------------------------------------------------------ command line
+@pytest.mark.slow(reason="20 s (2 cores): long runs or a first compilation")
 def test_cli_tyrex_json_contract(capsys, tmp_path):
     plot = tmp_path / "tyrex.png"
     assert main(["benchmark", "tyrex", "--data", DATA, "--filters", "mahony", "--anchors",

@@ -107,6 +107,7 @@ def test_full_sphere_recovers_offset_and_soft_iron(seed):
     assert np.linalg.eigvalsh(cal.soft_iron).min() > 0
 
 
+@pytest.mark.slow(reason="4 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_thirty_percent_coverage_meets_the_one_percent_targets(seed):
     """Target of issue 19: offset within 1 % of |B| and soft iron within 1 % (relative

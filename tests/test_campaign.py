@@ -116,6 +116,7 @@ def test_a_task_is_a_task_object_a_function_or_its_name():
         resolve_task(old_style)
 
 
+@pytest.mark.slow(reason="29 s (2 cores): long runs or a first compilation")
 def test_summary_is_the_json_contract(tmp_path, reference):
     res = CampaignResult(reference, tmp_path / "results.parquet", 12, 0, 2.0, 12)
     d = res.summary().to_dict()
@@ -138,6 +139,7 @@ def test_run_one_and_the_manifest(tmp_path, reference):
         read_manifest(tmp_path)
 
 
+@pytest.mark.slow(reason="21 s (2 cores): runs a Monte Carlo campaign")
 def test_sigkill_then_resume_gives_the_uninterrupted_table(tmp_path, reference):
     out = tmp_path / "c"
     script = textwrap.dedent(f"""
@@ -199,6 +201,7 @@ def test_only_reproduces_one_run(tmp_path, reference):
         _same(res.table, reference[reference["index"] == i])
 
 
+@pytest.mark.slow(reason="4 s (2 cores): runs a Monte Carlo campaign")
 def test_dask_executor_with_a_worker_killed(tmp_path, reference):
     distributed = pytest.importorskip("distributed")
     from distributed import Client, LocalCluster

@@ -33,6 +33,7 @@ def batch_calls(monkeypatch):
     return calls
 
 
+@pytest.mark.slow(reason="11 s (2 cores): long runs or a first compilation")
 def test_run_many_equals_runs_one_by_one(batch_calls):
     recs = [_imu_run(s) for s in range(5)]
     p = MahonyParams(kp_acc_rad_s=0.9, ki_rad_s2=0.02)
@@ -114,6 +115,7 @@ def test_imu_campaign_runs_share_the_batch_kernel(tmp_path, batch_calls):
                                                                 rel=1e-9)
 
 
+@pytest.mark.slow(reason="3 s (2 cores): runs a Monte Carlo campaign")
 def test_tilt_only_filters_are_judged_by_inclination(tmp_path):
     res = run_campaign("imu-handheld", 2, tmp_path, {"duration_s": "30"}, root_seed=1,
                        executor="serial", filters=["tilt-cf", "mahony"], progress=False)

@@ -50,6 +50,7 @@ def test_benchmark_broad_json_contract(capsys):
     assert out["groups"]["vqf"]["attached_magnet"]["trials"] == 1
 
 
+@pytest.mark.slow(reason="10 s (2 cores): long runs or a first compilation")
 def test_estimate_with_truth_writes_outputs(tmp_path, capsys):
     trial = EXCERPTS / "01_undisturbed_slow_rotation_A_excerpt.mat"
     out_csv, out_h5, plot = tmp_path / "e.csv", tmp_path / "e.h5", tmp_path / "e.png"
@@ -75,6 +76,7 @@ def _csv(path, rows, header="t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z,mag_x,mag_y,m
 GOOD = [[i * 0.01, 0, 0, 0, 0, 0, 9.81, 0, 20, -40] for i in range(20)]
 
 
+@pytest.mark.slow(reason="3 s (2 cores): runs the command line in new processes")
 @pytest.mark.parametrize(
     "case, expect",
     [
@@ -125,6 +127,7 @@ def test_unknown_filter_and_param(tmp_path):
     assert code == 2 and "'kp'" in err
 
 
+@pytest.mark.slow(reason="66 s (2 cores): reads a full data set")
 def test_reference_libraries_match_published_broad_scores(full_broad):
     """The metric and the adapters: published means on the 15 trials within 0.05 deg."""
     from gnomon.benchmark import run_broad
@@ -166,6 +169,7 @@ def test_campaign_command_json_and_bad_vary(tmp_path, capsys):
     assert code == 2 and "nosuch" in err and "Traceback" not in err
 
 
+@pytest.mark.slow(reason="70 s (2 cores): long runs or a first compilation")
 def test_bench_json_contract(capsys):
     """``gnomon bench --json`` keys (the speed itself is measured, not asserted)."""
     assert main(["bench", "--samples", "3000", "--repeats", "1", "--runs", "16",

@@ -84,6 +84,7 @@ def test_second_order_step_and_impulse_match_scipy(r1, r2, variant):
     assert np.max(np.abs(yi - an.second_order_impulse_response(t, r1, r2, variant))) < 1e-9
 
 
+@pytest.mark.slow(reason="5 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("r1,r2", GAINS)
 @pytest.mark.parametrize("variant", [1, 2])
 def test_second_order_pulse_and_drift_errors_match_lsim(r1, r2, variant):

@@ -46,6 +46,7 @@ def test_H_against_finite_differences():
                                    atol=1e-8)
 
 
+@pytest.mark.slow(reason="5 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("gg", [0.0, 3 * 0.0011**2])
 def test_F_against_finite_differences(gg):
     rng = np.random.default_rng(2)
@@ -98,6 +99,7 @@ def test_registered():
     assert "extra.b_o_nT" in EKFSpacecraft.needs and "extra.s_o" in MEKFSpacecraft.needs
 
 
+@pytest.mark.slow(reason="26 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("cls", [EKFSpacecraft, MEKFSpacecraft])
 def test_ideal_case_converges(ideal, cls):
     err = _err_deg(ideal, cls().run(ideal))
@@ -181,6 +183,7 @@ def _rows(rec, k):
     return kw
 
 
+@pytest.mark.slow(reason="22 s (2 cores): long runs or a first compilation")
 def test_streaming_update_equals_batch(noisy):
     rec = noisy.slice(1780, 1900)           # sunlit, then eclipse
     J = rec.extra["inertia_model_kg_m2"][0]

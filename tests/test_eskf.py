@@ -243,6 +243,7 @@ def test_no_runtime_import_of_the_generator():
         assert not re.search(r"import_module\([^)]*codegen", text), path
 
 
+@pytest.mark.slow(reason="4 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("r", [3, 6])
 def test_generated_update_equals_its_source(r):
     """The straight-line ``update_r{r}`` against ``gain`` + ``joseph`` run as plain Python
@@ -355,6 +356,7 @@ def test_streaming_update_matches_batch_run():
     np.testing.assert_allclose(g.P, f.P, rtol=1e-10, atol=1e-16)
 
 
+@pytest.mark.slow(reason="5 s (2 cores): long runs or a first compilation")
 def test_streaming_update_with_missing_samples():
     """``None``: no new sample. Without the gyro (``update_reference`` only: ``update``
     needs one) the state is not predicted; without the accelerometer or the magnetometer
@@ -490,6 +492,7 @@ def test_run_needs_accel_and_mag():
         E.EskfR6().run(rec)
 
 
+@pytest.mark.slow(reason="11 s (2 cores): runs a paper's reproduction")
 def test_reproduce_quick_contract(tmp_path):
     from gnomon.reproduce import p002
 

@@ -66,6 +66,7 @@ def _run(d, rec, tmp_path):
     return data[:, 0], data[:, 1:]
 
 
+@pytest.mark.slow(reason="8 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("name", IMU_EXPORTS)
 def test_double_equals_the_compiled_python_at_every_sample(built, recordings, name,
                                                            tmp_path):
@@ -135,7 +136,7 @@ def test_backend_c_equals_the_python_on_a_log(tmp_path, monkeypatch):
         assert _angle(run_c(name, rec).q, ref).max() < 1e-6
 
 
-@pytest.mark.slow  # about a minute: full phone trials and BROAD trials through every C export
+@pytest.mark.slow(reason="about a minute: full phone and BROAD trials through every C export")
 def test_held_out_trials_match_in_double_and_float(built, full_tyrex, full_broad, tmp_path):
     """Recordings the twins were not written on: full tyrex phone trials (each sensor on
     its own clock, samples stamped before the first gyro sample) and full BROAD trials;

@@ -79,6 +79,7 @@ def _q(text):
     return np.loadtxt(text.splitlines()[1:], delimiter=",")[:, 1:]
 
 
+@pytest.mark.slow(reason="4 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("params", [
     {},
     {"bias_gate": 0.2, "bias_gate_tau": 1.0},  # the bias held (Schmidt) part of the time
@@ -104,6 +105,7 @@ def test_multi_rate_gaps_dropouts_and_options_equal_the_python(broad, params, tm
             assert 0.05 < held[rows[1:] > 0].mean() < 0.95
 
 
+@pytest.mark.slow(reason="8 s (2 cores): long runs or a first compilation")
 def test_straight_line_update_equals_the_loops_to_the_last_bit(broad, tmp_path):
     rec = _multi_rate(broad)
     for name in NAMES:
@@ -112,6 +114,7 @@ def test_straight_line_update_equals_the_loops_to_the_last_bit(broad, tmp_path):
         assert fast == loops, name
 
 
+@pytest.mark.slow(reason="7 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", NAMES)
 def test_counted_operations_are_the_kernels_traced_ones(broad, name, tmp_path):
     r = int(name[-1])
@@ -132,6 +135,7 @@ def test_counted_operations_are_the_kernels_traced_ones(broad, name, tmp_path):
     assert _run(d, broad, tmp_path).startswith("t,q_w,q_x,q_y,q_z\n")
 
 
+@pytest.mark.slow(reason="4 s (2 cores): builds and runs the C export")
 def test_export_cost_json_has_the_phases(tmp_path):
     from gnomon.cli import main
 
@@ -216,6 +220,7 @@ def test_runner_without_a_magnetometer(broad, tmp_path):
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
 
 
+@pytest.mark.slow(reason="6 s (2 cores): runs a paper's reproduction")
 def test_reproduce_002_c_flight_code_cost():
     from gnomon.reproduce import p002
 

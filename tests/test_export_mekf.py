@@ -138,6 +138,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow(reason="7 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("name, params, labels", CASES,
                          ids=[f"{n}-{'-'.join(p) or 'default'}" for n, p, _ in CASES])
 def test_double_equals_the_compiled_python_at_every_sample(build, recordings, name, params,
@@ -248,6 +249,7 @@ def test_the_runner_as_a_library_equals_the_runner(build, recordings):
     np.testing.assert_array_equal(q, q_run)
 
 
+@pytest.mark.slow(reason="3 s (2 cores): long runs or a first compilation")
 def test_cost_json_is_measured(tmp_path):
     from gnomon.cli import main
 

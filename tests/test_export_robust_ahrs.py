@@ -255,6 +255,7 @@ def own_rate():
     return _own_rate_recording()
 
 
+@pytest.mark.slow(reason="8 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name, variant", [("robust-ahrs", i) for i in range(len(RA_VARIANTS))]
                          + [("tilt-cf", i) for i in range(len(TC_VARIANTS))])
 def test_the_library_sample_by_sample_at_own_rates_equals_run(tmp_path, own_rate, name,

@@ -60,6 +60,7 @@ def _push_all(live, events, arrivals=None):
     return (np.concatenate([c.t for c in chunks]), np.concatenate([c.q for c in chunks]))
 
 
+@pytest.mark.slow(reason="3 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("name", ["mahony", "robust-ahrs", "eskf-r3"])
 def test_samples_in_order_give_the_batch_result(broad, multi_rate, name):
     for rec in (broad, multi_rate):
@@ -207,6 +208,7 @@ def test_the_line_parser_returns_samples_or_raises_malformed_only(line):
 
 
 # ---------------------------------------------------------------- end to end
+@pytest.mark.slow(reason="3 s (2 cores): streams through the live pipeline in real time")
 def test_replay_through_gnomon_live_equals_gnomon_estimate(tmp_path):
     from gnomon.cli import main
 
@@ -259,6 +261,7 @@ def test_a_udp_stream_with_garbage_equals_the_batch_estimate(broad, tmp_path):
                   ref.q).max() < 1e-9
 
 
+@pytest.mark.slow(reason="3 s (2 cores): runs the command line in new processes")
 def test_gnomon_live_json_contract_and_signals(tmp_path):
     """--json prints the contract keys; SIGTERM ends the run and the file is complete."""
     import signal

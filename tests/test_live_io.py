@@ -234,6 +234,7 @@ def _receive_attitudes(tx, stop: threading.Event, got: list) -> threading.Thread
     return th
 
 
+@pytest.mark.slow(reason="8 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("case", ["highres", "highres-id", "scaled", "scaled2", "raw"])
 def test_mavlink_imu_stream_equals_the_batch_run_and_answers(rec, case):
     """A sender streams IMU messages of a recording (with other IMUs, garbage, a broken

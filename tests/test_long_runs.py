@@ -32,6 +32,7 @@ def static_imu():
     return rec, q_nb
 
 
+@pytest.mark.slow(reason="21 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", [n for n in registry.names(offline=False)
                                   if registry.get(n).kind == "imu"
                                   and set(registry.get(n).needs) <= IMU])
@@ -75,6 +76,7 @@ def static_satellite(n):
                      extra={"b_o_nT": const(b_o), "s_o": const(s_o), "w_io_o": const(w_io_o)})
 
 
+@pytest.mark.slow(reason="96 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", sorted(SPACECRAFT))
 def test_long_static_satellite(name):
     n = SPACECRAFT[name]

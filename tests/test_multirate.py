@@ -39,6 +39,7 @@ def test_the_registry_has_multi_rate_imu_filters():
     assert {"mahony", "robust-ahrs", "tilt-cf"} <= set(MULTI_RATE)
 
 
+@pytest.mark.slow(reason="6 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", ["mahony", "robust-ahrs", "tilt-cf"])
 def test_compiled_run_equals_update_with_none_where_no_sample(recs, name):
     _, rec = recs
@@ -81,6 +82,7 @@ def test_lower_sensor_rates_keep_the_accuracy(recs, name):
     assert rms_dec < max(1.3 * rms_full, rms_full + 0.25), (rms_full, rms_dec)
 
 
+@pytest.mark.slow(reason="10 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("params", [{}, {"bias_gate": 0.05, "bias_gate_tau": 0.05}])
 @pytest.mark.parametrize("name", ["eskf-r6", "eskf-r3"])
 def test_eskf_one_sensor_rows_equal_the_readable_update(recs, name, params):

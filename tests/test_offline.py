@@ -142,6 +142,7 @@ def test_robust_ahrs_offline_default_uncertainty_is_wider_than_the_simulations_n
     assert 0.2 < np.mean(nees) < 3.0, np.round(nees, 2)
 
 
+@pytest.mark.slow(reason="10 s (2 cores): reads a full data set")
 def test_robust_ahrs_offline_uncertainty_on_real_data(full_broad, full_tyrex):
     """On the real trials the default's mean NEES lies in [1.5, 8] over each data set's
     trials (before these defaults: BROAD 24.7, tyrex 9.3)."""

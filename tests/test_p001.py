@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from gnomon.reproduce import p001
 
 
+@pytest.mark.slow(reason="5 s (2 cores): streams through the live pipeline in real time")
 def test_contract_and_targets(tmp_path):
     res = p001.run(tmp_path, seeds=2, executor="serial")
     assert res["paper"] == "001"

@@ -98,6 +98,7 @@ def test_missing_image_is_reported_by_the_browser(tmp_path):
     json.dumps(evaluate("004", {}))  # an empty result still gives a serialisable table
 
 
+@pytest.mark.slow(reason="71 s (2 cores): drives a browser")
 def test_reproduce_all_quick_report_opens_in_chromium(tmp_path):
     """`gnomon reproduce all --quick --out DIR`: every paper's page has its table and
     figures, and every page opens in headless Chromium without console errors."""

@@ -95,6 +95,7 @@ def assert_kernel_equals_twin(params, rec):
     return est, run
 
 
+@pytest.mark.slow(reason="9 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("overrides", [
     {}, {"mag_bias_gain_per_s": 0.003, "heading_kf": False},
     {"hard_iron_tau_s": 5.0, "mag_soft_norm": 0.05, "mag_soft_dip_deg": 5.0, "mag_every": 1,
@@ -387,6 +388,7 @@ def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
     assert not np.any(f2.record.hard_iron.o)
 
 
+@pytest.mark.slow(reason="4 s (2 cores): long runs or a first compilation")
 def test_hard_iron_kernel_equals_reference():
     rec = attached_magnet(n=4000, on=slice(1000, 3000))
     est, run = assert_kernel_equals_twin(RobustAHRSParams(hard_iron_tau_s=3.0), rec)

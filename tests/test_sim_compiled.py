@@ -77,6 +77,7 @@ def _kernel(n, dt, substeps, f, ph, amp, q0, sigma, rng=None, runs=1, m_n=(0.0, 
     return t, gyro, bias, accel, mag, q, w
 
 
+@pytest.mark.slow(reason="6 s (2 cores): long runs or a first compilation")
 def test_constant_rate_integrates_to_the_exponential():
     """A constant body rate (one harmonic at 0 Hz, phase π/2) turns q0 by exp(w t) exactly,
     also at a rate whose substeps need the exact exponential (0.3 rad per substep)."""

@@ -102,6 +102,7 @@ def _streamed(f, rec, q0=None, q_mes=None, ok=None):
     return out
 
 
+@pytest.mark.slow(reason="16 s (2 cores): builds and runs the C export")
 @pytest.mark.parametrize("substitute", ["delayed", "delayed-gyro", "none"])
 def test_kernels_match_readable_references(substitute):
     """Kernel (``run``) against the readable ``step`` on the kernel's inputs, sample by sample,
@@ -285,6 +286,28 @@ def test_whole_outage_without_sun_never_nan_and_flags():
     assert est.signals["sun_substituted"][500:].all()
 
 
+def test_p000_axis_errors_split_a_known_error_along_b_s_and_c():
+    """The quick tier's look at the p000 reproduction: an estimate rotated from the truth
+    by 0.01 rad about the true field direction (body) is an error on the b axis alone,
+    one about b x s on the c axis alone (independent: the rotation is built here)."""
+    from gnomon.reproduce import p000
+    from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
+
+    rec = p000.simulate_seed(3, duration_s=120.0)
+    q_bo = quat_conj(rec.q_true)
+    b = quat_rotate(q_bo, rec.extra["b_o_nT"])
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    s = quat_rotate(q_bo, rec.extra["s_o"])
+    c = np.cross(b, s)
+    c /= np.linalg.norm(c, axis=1, keepdims=True)
+    for axis, k in ((b, 0), (c, 2)):
+        q_est = quat_mul(rec.q_true, quat_from_rotvec(0.01 * axis))
+        e = p000.axis_errors_bsc_rad(rec, q_est)
+        np.testing.assert_allclose(e[:, k], 0.01, atol=1e-9)
+        np.testing.assert_allclose(np.delete(e, k, axis=1), 0.0, atol=1e-9)
+
+
+@pytest.mark.slow(reason="12 s (2 cores): runs a paper's reproduction")
 def test_reproduction_quick_meets_targets():
     from gnomon.reproduce import p000
 
@@ -343,6 +366,7 @@ def _split_feed(f, rec, cuts):
     return np.array(q)
 
 
+@pytest.mark.slow(reason="3 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name, params", [
     ("ecf-spacecraft", {"sun_substitute": "delayed"}),
     ("ecf-spacecraft", {"sun_substitute": "delayed-gyro"}),

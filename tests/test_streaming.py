@@ -78,6 +78,7 @@ def _feed(f, rec, cuts):
     return np.array(q)
 
 
+@pytest.mark.slow(reason="12 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", CAUSAL)
 def test_any_split_into_update_and_update_many_equals_run(recordings, name):
     for label, rec in _cases(recordings, name):
@@ -91,6 +92,7 @@ def test_any_split_into_update_and_update_many_equals_run(recordings, name):
             assert _angle(q, ref) < 1e-12, (label, cuts, _angle(q, ref))
 
 
+@pytest.mark.slow(reason="18 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("name", COMPILED)
 def test_compiled_update_equals_the_readable_twin(recordings, name):
     for label, rec in _cases(recordings, name):

@@ -256,6 +256,7 @@ def p003_quick(tmp_path_factory):
     return p003.run(out, quick=True), out
 
 
+@pytest.mark.slow(reason="29 s (2 cores): long runs or a first compilation")
 def test_p003_quick_contract_and_targets(p003_quick):
     r, out = p003_quick
     assert r["paper"] == "003"
