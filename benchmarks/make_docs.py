@@ -1,6 +1,6 @@
 """Regenerate the measured tables of the docs and the README from the commands themselves.
 
-    python benchmarks/make_docs.py [--broad DIR] [--quick]
+    python benchmarks/make_docs.py [--broad DIR] [--quick] [--speed]
 
 Runs ``gnomon benchmark broad --json`` (the full BROAD trials when found, see
 ``gnomon.datasets.broad_dir``; the bundled excerpt otherwise),
@@ -282,11 +282,33 @@ def replace_section(text: str, name: str, body: str) -> str:
     return f"{head}{start}\n{body}\n{end}{tail}"
 
 
+def speed_only(quick: bool) -> None:
+    """``--speed``: run ``gnomon bench --json`` alone and put its table in place of the
+    former one, in the README (``bench`` markers) and in docs/benchmarks.md (the same
+    table, found by its text); the accuracy sections stay as measured before."""
+    from gnomon.speed import markdown_table
+
+    speed = markdown_table(gnomon_json("bench", *(["--quick"] if quick else [])))
+    readme_path, page_path = ROOT / "README.md", ROOT / "docs" / "benchmarks.md"
+    readme = readme_path.read_text()
+    old = readme.split("<!-- bench:start -->\n", 1)[1].split("\n<!-- bench:end -->", 1)[0]
+    page = page_path.read_text()
+    if old not in page:
+        raise SystemExit("docs/benchmarks.md does not hold the README's speed table: "
+                         "run make_docs.py without --speed")
+    page_path.write_text(page.replace(old, speed))
+    readme_path.write_text(replace_section(readme, "bench", speed))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--broad", help="BROAD directory (default: gnomon.datasets.broad_dir())")
     ap.add_argument("--quick", action="store_true", help="quick speed benchmark")
+    ap.add_argument("--speed", action="store_true",
+                    help="only the speed table (gnomon bench): README and docs/benchmarks.md")
     args = ap.parse_args()
+    if args.speed:
+        return speed_only(args.quick)
     from gnomon.datasets import broad_dir, bundled
     from gnomon.speed import markdown_table
 
