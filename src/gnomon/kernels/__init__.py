@@ -31,8 +31,9 @@ The shape of a filter's kernel (as VQF's ``Params`` → ``Coefficients`` → ``S
   inlined into the step, robust-ahrs took 58 s to compile on this project's 2-core
   machine and eskf-r3 48 s; as separate functions 8 s and 17 s, which is what a user's
   first ``gnomon estimate`` waits (``gnomon.kernels.compile_notice`` says so on stderr).
-  The price is a call per phase and sample: batch loops 1.2-1.4x slower than inlined,
-  still faster than VQF's C++ ``updateBatch`` (README's performance table). robust-ahrs'
+  The price is a call per phase and sample: batch loops 1.2-1.4x slower than inlined
+  (``gnomon bench``: robust-ahrs 1.79x and eskf-r3 1.37x the speed of VQF's C++
+  ``updateBatch``, eskf-r6 0.94x; they were 2.71x, 1.89x and 1.31x). robust-ahrs'
   batch and per-sample kernels take its coefficients in the same form (a record,
   ``entry.record``), so its step is compiled once for both.
 
