@@ -33,7 +33,11 @@ The shape of a filter's kernel (as VQF's ``Params`` → ``Coefficients`` → ``S
   first ``gnomon estimate`` waits (``gnomon.kernels.compile_notice`` says so on stderr).
   The price is a call per phase and sample: batch loops 1.2-1.4x slower than inlined
   (``gnomon bench``: robust-ahrs 1.79x and eskf-r3 1.37x the speed of VQF's C++
-  ``updateBatch``, eskf-r6 0.94x; they were 2.71x, 1.89x and 1.31x). robust-ahrs'
+  ``updateBatch``, eskf-r6 0.94x; they were 2.71x, 1.89x and 1.31x).
+  The spacecraft kernels (``spacecraft_cf``, ``mekf``) and ``mahony`` keep their phases
+  inlined: split, their loops ran 1.9-2.2x slower (ECF 12.1 -> 6.5, MEKF 1.38 -> 0.63
+  M samples/s, ``gnomon.reproduce.p000.benchmark_speed``) and their compile times were
+  already moderate. robust-ahrs'
   batch and per-sample kernels take its coefficients in the same form (a record,
   ``entry.record``), so its step is compiled once for both.
 

@@ -31,11 +31,11 @@ Shape (see ``gnomon.kernels``): ``STATE`` (one record), ``Coefficients`` from
 covariance), the vector updates (magnetometer, then the sun or the delayed pair) and
 the star tracker; ``row`` (one raw sample: the second pair from the tail, the step,
 the gyro sample held, the estimate into the tail) is what the buffer loop
-``mekf_stream`` and the per-sample kernel ``mekf_sample`` both run. Each phase is a compiled
-function of its own (only the few-line ``_work``, ``rate`` and ``predict_attitude`` are
-``inline="always"``): inlined, a call per sample saves passing a dozen arrays, but
-numba's compile time grows faster than the code (with everything inlined ~100 s for the
-batch loop; see ``gnomon/kernels/__init__.py``). Matrices live in ``(12, 12)`` storage; the
+``mekf_stream`` and the per-sample kernel ``mekf_sample`` both run. The step, the
+prediction and the vector update are ``inline="always"`` (a call per sample passes a
+dozen arrays: measured 1.5x slower); the magnetometer, its magnitude row and the star
+tracker are plain compiled functions (with everything inlined, numba took ~100 s to
+compile the batch loop). Matrices live in ``(12, 12)`` storage; the
 loops run over the ``n`` states in use, so a 6-state filter does 6-state work.
 """
 
@@ -181,7 +181,7 @@ def predict_attitude(q, wx, wy, wz, iox, ioy, ioz, dt):
     turn(q, (wx - tx) * dt, (wy - ty) * dt, (wz - tz) * dt)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def propagate_covariance(c, P, wx, wy, wz, dt, work):
     """``P <- Φ P Φᵀ + Q dt``. Φ is the identity but for the attitude rows
     ``[A, −I dt, 0, −diag(ω̂) dt]``, ``A = exp(−[ω̂×] dt)`` or ``I − [ω̂×] dt`` (the
@@ -227,7 +227,7 @@ def propagate_covariance(c, P, wx, wy, wz, dt, work):
 
 
 # ---------------------------------------------------------------- updates
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def update3(n, P, y0, y1, y2, i_h2, work):
     """One 3-row update of the rows ``work.H`` with noise ``work.R`` and innovation ``y``
     (about the point before this sample's corrections ``work.dx``):
@@ -278,7 +278,7 @@ def update3(n, P, y0, y1, y2, i_h2, work):
     return chi2
 
 
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def apply_correction(c, s, work):
     """``q <- normalise(q ⊗ exp(θ))`` (or ``normalise(q ⊗ [1, θ/2])``), ``b̂ += δb``
     (``m̂ += δm``, ``ŝ += δs``); clears ``work.dx``."""
@@ -298,7 +298,7 @@ def apply_correction(c, s, work):
         dx[a] = 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def vector_update(c, s, ub, uo, sigma, mag_norm, work):
     """One unit-vector measurement (body ``ub``, reference ``uo``, tuples; noise ``sigma``
     rad per direction): ``m̂ = R_bo uo``, ``H = [[m̂×], 0, (I − ub ubᵀ)/|B| (the
@@ -382,7 +382,7 @@ def magnitude_update(c, s, u, y, work):
         apply_correction(c, s, work)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def second_sigma(c, q, substituted, has_old, q_old):
     """Noise (rad) of the second pair, or -1 (do not use it): ``sigma_sun_rad`` for the sun;
     for the paper's delayed magnetometer pair ``sqrt(σ_mag² + (swing_gain·Δ)²)``, Δ the
@@ -452,7 +452,7 @@ def star_tracker(c, s, st_q, bore, wx, wy, wz, work):
 
 
 # ---------------------------------------------------------------- one sample, the batch
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def step(c, s, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted, has_old,
          q_old, st_q, st_valid, st_bore, flags, innov, work):
     """One sample on the record ``s``: gyro prediction over ``dt`` (attitude, covariance),
@@ -510,7 +510,7 @@ def step(c, s, dt, g, w_io_o, mag_b, mag_o, sec_b, sec_o, sec_valid, substituted
         flags[COAST] = 1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def row(c, s, ring, dt, g, w_io_o, mag_b, mag_o, sun_b, sun_o, sun_valid, substituted, given,
         st_q, st_valid, st_bore, flags, innov, work):
     """One raw sample on the record ``s`` and its tail ``ring``: the second pair (the sun,
