@@ -346,8 +346,13 @@ def test_ulog_backward_repeated_nan_and_empty(tmp_path):
             path = _ulog_patch_timestamp(path, tmp_path / "back.ulg", "sensor_combined", 10,
                                          1000)
         with pytest.raises(InputError, match=what) as e:
-            read(path)
+            read(path, strict=True)
         one_line_naming(e.value, path, field)
+        if change is nan:  # not strict: that gyro sample dropped and counted
+            assert read(path).meta["dropped"] == {"gyro": 1}
+        else:
+            with pytest.raises(InputError, match=what):
+                read(path)
 
 
 def test_dataflash_backward_and_nan(tmp_path):
@@ -369,8 +374,9 @@ def test_dataflash_backward_and_nan(tmp_path):
         path = tmp_path / "t.BIN"
         path.write_bytes(bytes(data))
         with pytest.raises(InputError, match=what) as e:
-            read(path)
+            read(path, strict=True)
         one_line_naming(e.value, path, field)
+    assert read(path).meta["dropped"] == {"gyro": 1}  # not strict: dropped and counted
 
 
 def test_rosbag_backward_nan_and_empty_topic(tmp_path):
@@ -411,8 +417,9 @@ def test_rosbag_backward_nan_and_empty_topic(tmp_path):
              (bag("empty.bag", t[:1], [0.0]), "at least 2", "/imu"))
     for path, what, field in cases:
         with pytest.raises(InputError, match=what) as e:
-            read(path)
+            read(path, strict=True)
         one_line_naming(e.value, path, field)
+    assert read(cases[1][0]).meta["dropped"] == {"gyro": 1}  # not strict: dropped, counted
     path = bag("emptymag.bag", t, np.zeros(10), with_empty_mag=True)
     rec = read(path)  # picked by default, without messages: no magnetometer, and said so
     assert rec.mag is None and any("'/mag'" in s and "no messages" in s
@@ -441,8 +448,10 @@ def test_tyrex_mutated_files(tmp_path, trial):
         change(lines)
         f.write_text("\n".join(lines) + ("\n" if lines else ""))
         with pytest.raises(InputError) as e:
-            read(d)
+            read(d, strict=True)
         one_line_naming(e.value, d)
+        if name == "nan":  # not strict: that accelerometer sample dropped, counted
+            assert read(d).meta["dropped"] == {"accel": 1}
 
 
 def test_xsens_and_phyphox_partial_rows(tmp_path, log_files):

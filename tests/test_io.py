@@ -199,9 +199,16 @@ def test_hdf5_bad_values_name_file_field_row(tmp_path):
     path = write_recording(tmp_path / "nan.h5", rec)
     with h5py.File(path, "a") as f:
         f["gyro"][7, 1] = np.nan
-    with pytest.raises(InputError) as e:
-        read_recording(path)
+    with pytest.raises(InputError) as e:  # read strictly: refused, named
+        read(path, strict=True)
     assert "nan.h5" in str(e.value) and "field 'gyro'" in str(e.value) and "row 7" in str(e.value)
+    kept = read_recording(path)  # else that gyro row is dropped, with its truth row, counted
+    assert kept.meta["dropped"] == {"gyro": 1} and len(kept) == len(rec) - 1
+    assert np.array_equal(kept.t, np.delete(rec.t, 7))
+    assert np.array_equal(kept.q_true, np.delete(rec.q_true, 7, axis=0), equal_nan=True)
+    assert np.array_equal(kept.extra["mode"], np.delete(rec.extra["mode"], 7))
+    # the accelerometer keeps its sample of that row, at its own time stamp
+    assert np.array_equal(kept.accel, rec.accel) and np.array_equal(kept.accel_t, rec.t)
 
 
 def test_truncated_and_garbage_hdf5_raise_input_error(tmp_path):
@@ -323,9 +330,12 @@ def test_broad_bad_values_name_field_and_row(tmp_path):
     with h5py.File(path, "a") as f:
         f["imu_gyr"][123, 0] = np.nan
     with pytest.raises(InputError) as e:
-        read_broad(path)
+        read(path, strict=True)
     msg = str(e.value)
     assert "nan_gyr.hdf5" in msg and "field 'imu_gyr'" in msg and "row 123" in msg
+    whole, kept = read_broad(H5), read_broad(path)  # not strict: that sample dropped
+    assert kept.meta["dropped"] == {"gyro": 1} and len(kept) == len(whole) - 1
+    assert np.array_equal(kept.t, np.delete(whole.t, 123))
 
     short = tmp_path / "short_acc.hdf5"
     shutil.copy(H5, short)
@@ -477,10 +487,11 @@ def _bad(tmp_path, edit, header=HEADER, name="bad.csv"):
 def test_csv_nan_in_sensor_column_names_file_column_row(tmp_path):
     path = _bad(tmp_path, lambda rows: rows[2].__setitem__(2, "nan"))  # gyr_y, 3rd data row
     with pytest.raises(InputError) as e:
-        read_csv(path)
+        read(path, strict=True)
     msg = str(e.value)
     assert str(path) in msg and "field 'gyr_y'" in msg and "row 3" in msg and "line 4" in msg
     assert (e.value.file, e.value.field, e.value.row) == (str(path), "gyr_y", 3)
+    assert read_csv(path).meta["dropped"] == {"gyro": 1}  # not strict: dropped, counted
 
 
 def test_csv_non_increasing_time_names_file_column_row(tmp_path):

@@ -330,7 +330,8 @@ def compare_onboard(rec: Recording, q_est) -> tuple[dict, np.ndarray]:
     between them is removed first. ``heading_reference`` names the device's north when
     the reader knew it (``rec.meta["onboard_heading_reference"]``)."""
     if rec.q_onboard is None:
-        raise InputError("the recording holds no attitude estimate of the device's own",
+        why = (rec.meta or {}).get("onboard_absent")
+        raise InputError(why or "the recording holds no attitude estimate of the device's own",
                          field="q_onboard", file=rec.source or None)
     from gnomon.rotation import quat_from_rotvec
 

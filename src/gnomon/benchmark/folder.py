@@ -47,9 +47,10 @@ def _recordings(root: Path, depth: int = 4) -> tuple[list[tuple[str, Path, str]]
     return found, skipped
 
 
-def _with_truth(root: Path, skipped: list) -> list:
+def _with_truth(root: Path, skipped: list, strict: bool = False) -> list:
     """``[(name, rec)]`` of the recordings under ``root`` that hold a truth; the others
-    (and what cannot be read) go to ``skipped``."""
+    (and what cannot be read, with ``strict`` a non-finite sample too) go to
+    ``skipped``."""
     from gnomon.io import read
 
     found, more = _recordings(root)
@@ -57,7 +58,7 @@ def _with_truth(root: Path, skipped: list) -> list:
     recs = []
     for name, path, fmt in found:
         try:
-            rec = read(path, format=fmt)
+            rec = read(path, format=fmt, strict=strict)
         except InputError as err:
             skipped.append({"trial": name, "reason": f"{fmt}: {err.message}"})
             continue
@@ -72,19 +73,20 @@ def _with_truth(root: Path, skipped: list) -> list:
 
 def run_benchmark(data_dir, filters: Sequence[str] | None = None,
                   anchors: Sequence[str] | None = None, align: Sequence[str] | str = (),
-                  progress: bool = False) -> dict:
+                  progress: bool = False, strict: bool = False) -> dict:
     """Every recording under ``data_dir`` that gnomon reads (any format, any depth up to
     4) and that holds a truth (``q_true``): ``filters`` (default every IMU filter),
     ``anchors`` (default every installed causal library, ``vqf-offline`` and ``onboard``,
     the device's own estimate, where the recording has one), ``align`` (default none).
-    Recordings without a truth, and files gnomon cannot read, are listed in ``skipped``.
+    Recordings without a truth, and files gnomon cannot read (``strict``: nor those with a
+    non-finite sample, else dropped from its sensor), are listed in ``skipped``.
     Returns the JSON object of the module docstring."""
     root = Path(data_dir)
     if not root.is_dir():
         raise InputError("no such directory", file=str(root))
     align = parse_align(align)
     skipped: list = []
-    recs = _with_truth(root, skipped)
+    recs = _with_truth(root, skipped, strict)
     if anchors is None:
         anchors = default_anchors() + ["onboard"]
     methods = make_methods(default_filters() if filters is None else filters, anchors)

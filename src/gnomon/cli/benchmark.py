@@ -7,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from gnomon.cli.common import add_quiet_option, print_json, progress_wanted
+from gnomon.cli.common import add_quiet_option, add_strict_option, print_json, progress_wanted
 from gnomon.errors import InputError
 
 
@@ -38,6 +38,7 @@ def add_parser(sub) -> None:
                         "data set's calibration recording of that phone and day (recording)")
     s.add_argument("--plot", help="write a bar chart, e.g. broad.png (tyrex, DIR: per group)")
     s.add_argument("--json", action="store_true", help="print the JSON result")
+    add_strict_option(s)
     add_quiet_option(s)
     s.set_defaults(func=run)
 
@@ -64,6 +65,8 @@ def run(args) -> int:
     if not named and args.data:
         raise InputError("--data is for a named benchmark (broad, tyrex); give the folder "
                          "itself: gnomon benchmark DIR", field="--data")
+    if args.strict and named:
+        raise InputError("--strict applies to benchmark DIR", field="--strict")
     if args.mag is not None and args.dataset != "tyrex":
         raise InputError("--mag applies to the tyrex benchmark", field="--mag")
     if args.mag_calibration is not None and args.dataset != "tyrex":
@@ -81,7 +84,7 @@ def run(args) -> int:
                         progress=progress, mag_calibration=args.mag_calibration)
     else:
         res = run_benchmark(args.dataset, filters=filters, anchors=anchors,
-                            align=args.align or (), progress=progress)
+                            align=args.align or (), progress=progress, strict=args.strict)
     if args.plot:
         if args.dataset == "broad":
             from gnomon.report.figures import plot_broad

@@ -1,5 +1,6 @@
 """What the commands share: JSON printing, ``KEY=VALUE`` options, the input options
-(``--format``, log and CSV options, ``--phone-mag``), reading the input, progress.
+(``--format`` with ``--strict``, log and CSV options, ``--phone-mag``), reading the input,
+progress.
 
 Nothing here knows a command; each command module in :mod:`gnomon.cli` uses these.
 """
@@ -94,19 +95,32 @@ def read_input(args):
 
 
 def log_options(args) -> dict:
-    """``--topic``/``--instance`` (and ``--mag-topic``) as reader options, when given."""
+    """``--topic``/``--instance`` (and ``--mag-topic``) as reader options, when given, and
+    ``--strict`` as ``gnomon.io.read``'s ``strict``."""
     out = {}
     for opt in ("topic", "mag_topic", "instance"):
         if getattr(args, opt, None) is not None:
             out[opt] = getattr(args, opt)
+    if getattr(args, "strict", False):
+        out["strict"] = True
     return out
 
 
 def add_format_option(s) -> None:
-    """``--format``: the input's format, found from its content by default."""
+    """``--format``: the input's format, found from its content by default; and
+    ``--strict`` (:func:`add_strict_option`)."""
     from gnomon.io import FORMATS
 
     s.add_argument("--format", default="auto", choices=list(FORMATS))
+    add_strict_option(s)
+
+
+def add_strict_option(s) -> None:
+    """``--strict``: refuse a sample with a non-finite value instead of dropping it from
+    its sensor (and counting it)."""
+    s.add_argument("--strict", action="store_true",
+                   help="refuse a NaN/inf sample (naming the field and the row) instead of "
+                        "dropping it from its own sensor and counting it")
 
 
 def add_log_options(s) -> None:

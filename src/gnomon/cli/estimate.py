@@ -61,11 +61,13 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     """``registry.create(name, params).run(gnomon.io.read(path))`` and ``metrics.score``."""
     from gnomon.estimators import registry
+    from gnomon.io.summary import reader_notes
     from gnomon.metrics import score
 
     if args.mag_calibration:
         raw_phone_mag(args, "--mag-calibration corrects")
     rec = read_input(args)
+    notes = reader_notes(rec)  # what the reader noted: dropped, truncated, assumed
     cal_summary = None
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
@@ -80,13 +82,16 @@ def run(args) -> int:
                **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,
                "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
-                                                        {}))}
+                                                        {})), **notes}
     if cal_summary is not None:
         summary["mag_calibration"] = cal_summary
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
     matched = None
-    if args.compare == "onboard":
+    if args.compare == "onboard" and rec.q_onboard is None:  # said, not an error
+        summary.update(onboard=None, onboard_absent=rec.meta.get("onboard_absent") or
+                       "the recording holds no attitude estimate of the device's own")
+    elif args.compare == "onboard":
         from gnomon.metrics import compare_onboard
 
         summary["onboard"], matched = compare_onboard(rec, est.q)
@@ -120,6 +125,8 @@ def _print_summary(s: dict) -> None:
               f"{cal['coverage']:.2f}, residual {cal['residual_uT']:.2f} uT")
     for w in s["warnings"]:
         print(f"  warning: {w['message']}")
+    for line in s.get("notes", []):
+        print(f"  note: {line}")
     if "errors" in s:
         e = s["errors"]
         print(f"  RMS error over {e['samples']} scored samples: total {e['total_deg']:.3f} deg, "
@@ -128,7 +135,9 @@ def _print_summary(s: dict) -> None:
               f"yaw {e['yaw_deg']:.3f} deg; max {e['max_deg']:.3f} deg")
     else:
         print("  (no truth in the input: no error summary)")
-    if "onboard" in s:
+    if s.get("onboard_absent"):
+        print(f"  no comparison with the device's own estimate: {s['onboard_absent']}")
+    if s.get("onboard"):
         o = s["onboard"]
         print(f"  vs the device's own estimate over {o['samples']} samples: total "
               f"{o['total_deg']:.3f} deg, heading {o['heading_deg']:.3f} deg, inclination "

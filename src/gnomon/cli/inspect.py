@@ -48,6 +48,11 @@ def run_inspect(args) -> int:
         if info[key]:
             o = info[key]
             print(f"  {label}: {o['what']} ({o['coverage']:.0%} of gyro samples)")
+    if info.get("onboard_absent"):
+        print(f"  own estimate: none ({info['onboard_absent']})")
+    if info.get("dropped"):
+        print(f"  dropped: {_counts(info['dropped'])} (samples with a non-finite value; "
+              "--strict refuses them)")
     if info.get("truncated"):
         c = info["truncated"]
         print(f"  truncated: the file ends inside a message at byte {c['at_byte']} "
@@ -58,6 +63,11 @@ def run_inspect(args) -> int:
     for line in info["assumed"]:
         print(f"  assumed: {line}")
     return 0
+
+
+def _counts(dropped: dict) -> str:
+    """``{"gyro": 2, "mag": 5}`` as ``gyro 2, mag 5``."""
+    return ", ".join(f"{k} {n}" for k, n in dropped.items())
 
 
 def run_convert(args) -> int:

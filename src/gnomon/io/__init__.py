@@ -31,9 +31,11 @@ format            recognised by                                    reader
 ``**options`` go to that reader (``topic``, ``instance``, ``mag_topic``, ``columns``,
 ``gyro_unit``, ...); an option the reader does not take is an :class:`InputError`
 naming it. ``inspect(path)`` says what is inside (sensors, rates, gaps, units, the
-device's own estimate, the topics/instances available), ``write(path, rec)`` writes
-gnomon's HDF5 recording format (:mod:`gnomon.io.hdf5`). Every failure on bad input is an
-:class:`~gnomon.errors.InputError` that names the file (and the field and row).
+device's own estimate, the topics/instances available, the samples dropped),
+``write(path, rec)`` writes gnomon's HDF5 recording format (:mod:`gnomon.io.hdf5`). Every
+failure on bad input is an :class:`~gnomon.errors.InputError` that names the file (and the
+field and row). A sample with a non-finite value is dropped from its sensor and counted
+(``meta["dropped"]``), or refused with ``read(path, strict=True)``.
 
 The log libraries (``pyulog``, ``pymavlink``, ``rosbags``: ``pip install
 'gnomon[logs]'``) are imported only when such a file is read.
@@ -248,13 +250,17 @@ def detect_format(path: str | os.PathLike) -> str:
                      file=str(path))
 
 
-def read(path: str | os.PathLike, format: str = "auto", **options) -> Recording:
+def read(path: str | os.PathLike, format: str = "auto", *, strict: bool = False,
+         **options) -> Recording:
     """Read a recording from ``path`` (a file, or a folder for ROS 2 bags and phone exports).
 
     Parameters
     ----------
     path : the file or folder.
     format : ``"auto"`` (detect, see the module docstring) or one of ``FORMATS``.
+    strict : refuse a sample with a non-finite value (an :class:`InputError` naming the
+        field and the row) instead of dropping it from its sensor and counting it in
+        ``meta["dropped"]`` (:mod:`gnomon.io._common`: imperfect logs are kept).
     **options : passed to the format's reader (e.g. ``topic``, ``instance`` for logs;
         ``columns``, ``gyro_unit``, ... for CSV); an option that reader does not take
         raises :class:`InputError` naming it.
@@ -273,13 +279,17 @@ def read(path: str | os.PathLike, format: str = "auto", **options) -> Recording:
     if unknown:
         raise InputError(f"option(s) {unknown} do not apply to {fmt} files; its options: "
                          f"{', '.join(known) or 'none'}", file=str(path), field=unknown[0])
-    return reader(path, **options)
+    from gnomon.io._common import strict_reading
+
+    with strict_reading(strict):
+        return reader(path, **options)
 
 
 def inspect(path: str | os.PathLike, format: str = "auto", **options) -> dict:
     """What a log holds (:func:`gnomon.io.summary.summarise`): sensors with ``rate_hz``,
-    ``samples``, ``unit``, gaps, duration, the device's own estimate, what else the file
-    offers (topics, instances) and what the reader assumed. JSON-able."""
+    ``samples``, ``unit``, gaps, duration, the device's own estimate (or why there is
+    none), what else the file offers (topics, instances), the samples dropped and what the
+    reader assumed. JSON-able; ``options`` as for :func:`read` (``strict`` too)."""
     from gnomon.io.summary import summarise
 
     fmt = detect_format(path) if format == "auto" else format

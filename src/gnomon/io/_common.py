@@ -14,11 +14,33 @@ No sensor value is ever repeated or interpolated: :func:`series` keeps each sens
 samples and time stamps; the only resampled series is the device's own attitude estimate
 (:func:`onboard_on`), a comparison series a filter never sees, slerped onto the gyro time
 stamps and NaN outside its span and across its gaps.
+
+**Imperfect logs are kept.** A sample with a non-finite value (NaN, inf: a driver's
+placeholder before the sensor is up, a lost message) is dropped from its own sensor only,
+by :func:`build` through :func:`drop_nonfinite`: a gyro sample takes its row of the time
+base with it (and that row of the truth, the own estimate, the mask, the sun sensors and
+the ``extra`` series); an accelerometer or magnetometer sample is dropped from that sensor
+alone, which then keeps its own time stamps (the multi-rate form of
+:class:`~gnomon.recording.Recording`). The counts go to ``meta["dropped"]`` (``{"gyro": n,
+"accel": n, "mag": n}``, sensors with drops only) and a sentence to ``meta["assumed"]``; a
+sensor left with no sample (the gyro: fewer than 2) is an :class:`InputError` naming it.
+Non-finite *time stamps* are still refused (a clock that fails is not a lost sample), and
+NaN rows of ``q_true``/``q_onboard`` still mean missing truth or estimate. Reading
+strictly (``gnomon.io.read(path, strict=True)``, ``--strict``, which :func:`series` and
+:func:`build` see through :func:`strict_reading`) refuses a non-finite sample instead,
+naming the field and the row, as before.
+
+**No fake own estimate.** A device attitude (``q_onboard``) that is constant over the whole
+log (a driver filling ``orientation`` with the identity), or that has no finite row, is no
+estimate: :func:`build` sets ``q_onboard = None`` and says why in ``meta["onboard_absent"]``
+(:func:`own_estimate_absent`); a reader that knows the estimate is marked absent (ROS
+``orientation_covariance[0] = -1``) says so there itself.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import importlib
 import io
 import math
@@ -28,12 +50,13 @@ from pathlib import Path
 import numpy as np
 
 from gnomon.errors import InputError
-from gnomon.recording import Recording
+from gnomon.recording import SENSORS, Recording
 from gnomon.rotation import quat_mul
 
 __all__ = ["Q_ENU_NED", "Q_FRD_FLU", "Q_ENU_NWU", "frd_to_flu", "ned_frd_to_enu_flu",
            "optional_import", "series", "onboard_on", "gaps", "build", "quiet", "quiet_fd2",
-           "GAP_FACTOR", "LOGS_EXTRA", "cut_short"]
+           "GAP_FACTOR", "LOGS_EXTRA", "cut_short", "drop_nonfinite", "own_estimate_absent",
+           "strict_reading", "reading_strictly", "CONSTANT_ONBOARD_RAD"]
 
 _S = math.sqrt(0.5)
 #: ENU from NED: x↔y swapped, z flipped
@@ -46,6 +69,26 @@ Q_ENU_NWU = np.array([_S, 0.0, 0.0, _S])
 GAP_FACTOR = 5.0
 #: the optional extra that installs the log libraries
 LOGS_EXTRA = "gnomon[logs]"
+#: an own estimate whose every row is within this angle (rad) of its first is constant
+CONSTANT_ONBOARD_RAD = 1e-6
+
+_STRICT = contextvars.ContextVar("gnomon_strict_reading", default=False)
+
+
+@contextlib.contextmanager
+def strict_reading(strict: bool = True):
+    """While inside, :func:`series` and :func:`build` refuse a non-finite sample instead of
+    dropping it (``gnomon.io.read(path, strict=True)`` reads inside this)."""
+    token = _STRICT.set(bool(strict))
+    try:
+        yield
+    finally:
+        _STRICT.reset(token)
+
+
+def reading_strictly() -> bool:
+    """Whether the current read refuses non-finite samples (:func:`strict_reading`)."""
+    return _STRICT.get()
 
 
 def frd_to_flu(v: np.ndarray) -> np.ndarray:
@@ -95,8 +138,12 @@ def quiet():
         yield buf
 
 
-def series(path, field: str, t, values, *, width: int = 3, assumed: list | None = None):
-    """One sensor's samples, checked: finite time stamps (s) and values, time increasing.
+def series(path, field: str, t, values, *, width: int = 3, assumed: list | None = None,
+           strict: bool | None = None):
+    """One sensor's samples, checked: finite time stamps (s), time increasing; values that
+    are not finite are kept (NaN rows) for :func:`build` to drop and count, or with
+    ``strict`` (default: :func:`reading_strictly`) an :class:`InputError` naming ``field``
+    and the row.
 
     Consecutive rows with the same time stamp *and* the same values are one sample logged
     twice (kept once; said in ``assumed``); the same time stamp with other values, or a time
@@ -119,7 +166,7 @@ def series(path, field: str, t, values, *, width: int = 3, assumed: list | None 
             raise InputError(f"non-finite time stamp {float(t[i])!r}", file=str(path),
                              field=field, row=i)
         bad = ~np.isfinite(v).all(axis=1)
-        if bad.any():
+        if bad.any() and (reading_strictly() if strict is None else strict):
             i = int(np.argmax(bad))
             raise InputError(f"non-finite value {v[i].tolist()}", file=str(path), field=field,
                              row=i)
@@ -127,7 +174,8 @@ def series(path, field: str, t, values, *, width: int = 3, assumed: list | None 
         dt = np.diff(t)
         same = dt == 0
         if same.any():
-            equal = same & np.all(v[1:] == v[:-1], axis=1)
+            a, b = v[1:], v[:-1]
+            equal = same & np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
             if np.any(same & ~equal):
                 i = int(np.argmax(same & ~equal)) + 1
                 raise InputError(f"time stamp {float(t[i])!r} repeats with another value",
@@ -241,14 +289,141 @@ def _slerp(q0: np.ndarray, q1: np.ndarray, f: np.ndarray) -> np.ndarray:
     return _blend(q0, q1, f, _arc(q0, q1))
 
 
-def build(path, names: dict, **fields) -> Recording:
-    """``Recording(**fields)``; its InputError re-raised naming ``path`` and the field as the
-    log calls it (``names``: Recording field -> log field)."""
+def build(path, names: dict, *, strict: bool | None = None, **fields) -> Recording:
+    """``Recording(**fields)`` of a log at ``path``, its InputError re-raised naming ``path``
+    and the field as the log calls it (``names``: Recording field -> log field).
+
+    First (module docstring) the non-finite samples are dropped from their own sensor
+    (:func:`drop_nonfinite`; counts in ``meta["dropped"]``, a sentence in
+    ``meta["assumed"]``) unless ``strict`` (default: :func:`reading_strictly`), when the
+    Recording refuses them; and an own estimate that is none (:func:`own_estimate_absent`)
+    is set to None with the reason in ``meta["onboard_absent"]``."""
+    meta = dict(fields.get("meta") or {})
     try:
-        return Recording(**fields)
+        if not (reading_strictly() if strict is None else strict):
+            fields, dropped, first = drop_nonfinite(fields)
+            if dropped:
+                total = dict(meta.get("dropped") or {})
+                for k, n in dropped.items():
+                    total[k] = total.get(k, 0) + n
+                meta["dropped"] = total
+                meta["assumed"] = list(meta.get("assumed", [])) + [
+                    _dropped_sentence(dropped, first, names)]
+        why = own_estimate_absent(fields.get("q_onboard"),
+                                  meta.get("onboard") or names.get("q_onboard") or
+                                  "the device's own estimate (q_onboard)")
+        if why is not None:
+            fields = {**fields, "q_onboard": None}
+            meta.update(onboard_absent=why, onboard=None, onboard_heading_reference=None)
+            if "onboard_gravity_deg" in meta:
+                meta["onboard_gravity_deg"] = None
+        return Recording(**{**fields, "meta": meta})
     except InputError as err:
         raise InputError(err.message, file=str(path), field=names.get(err.field, err.field),
                          row=err.row) from None
+
+
+#: per-row series of the time base that a dropped gyro sample takes with it
+_PER_ROW = ("q_true", "q_onboard", "mask", "sun", "sun_valid")
+
+
+def drop_nonfinite(fields: dict) -> tuple[dict, dict, dict]:
+    """The samples of ``fields`` (``Recording`` keyword arguments) whose values are not all
+    finite dropped, each from its own sensor (module docstring): ``(the new fields, {sensor:
+    count dropped}, {sensor: time stamp (s) of its first dropped sample})``, sensors with
+    drops only. A gyro sample takes its time-base row (``t``, the rows of ``q_true``,
+    ``q_onboard``, ``mask``, ``sun``, ``sun_valid`` and each ``extra`` series) with it; a
+    single-rate accelerometer or magnetometer then keeps all its samples at their own
+    time stamps (the old rows of ``t``). An accelerometer or magnetometer sample is dropped
+    alone (its own ``accel_t``/``mag_t`` are the kept time stamps). Fields of the wrong
+    shape are left as they are for ``Recording`` to refuse. A sensor with every sample
+    dropped (the gyro: fewer than 2 left) raises :class:`InputError` naming it."""
+    out = dict(fields)
+    try:
+        t = np.asarray(fields.get("t"), dtype=float)
+        gyro = np.asarray(fields.get("gyro"), dtype=float)
+    except (TypeError, ValueError):
+        return out, {}, {}
+    if t.ndim != 1 or gyro.shape != (t.size, 3):
+        return out, {}, {}
+    counts, first = {}, {}
+    bad = ~np.isfinite(gyro).all(axis=1)
+    if bad.any():
+        counts["gyro"], first["gyro"] = int(bad.sum()), float(t[bad][0])
+        if t.size - counts["gyro"] < 2:
+            raise InputError(f"{counts['gyro']} of {t.size} samples are not finite: fewer "
+                             "than 2 left", field="gyro")
+        keep = ~bad
+
+        def rows(v):
+            return np.asarray(v)[keep] if v is not None and np.shape(v)[:1] == (t.size,) \
+                else v
+
+        out.update(t=t[keep], gyro=gyro[keep], **{k: rows(fields.get(k)) for k in _PER_ROW})
+        if fields.get("extra"):
+            out["extra"] = {k: rows(v) for k, v in dict(fields["extra"]).items()}
+    for name in SENSORS:
+        if fields.get(name) is None:
+            continue
+        own = fields.get(f"{name}_t")
+        try:
+            v = np.asarray(fields[name], dtype=float)
+            times = t if own is None else np.asarray(own, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            continue
+        if v.ndim != 2 or v.shape[0] != times.size:
+            continue
+        bad = ~np.isfinite(v).all(axis=1)
+        if bad.any():
+            counts[name], first[name] = int(bad.sum()), float(times[bad][0])
+            if bad.all():
+                raise InputError(f"all {v.shape[0]} samples are not finite", field=name)
+        if bad.any() or (own is None and "gyro" in counts):
+            out[name], out[f"{name}_t"] = v[~bad], times[~bad]
+    return out, counts, first
+
+
+def _dropped_sentence(dropped: dict, first: dict, names: dict) -> str:
+    parts = []
+    for k in ("gyro", "accel", "mag"):
+        if k in dropped:
+            log = f" ({names[k]})" if names.get(k) else ""
+            parts.append(f"{k}{log} {dropped[k]} (the first at t = {first[k]:.6g} s)")
+    tail = "; a gyro sample takes its row of the truth and the own estimate with it" \
+        if "gyro" in dropped else ""
+    return ("Samples with a non-finite value were dropped, each from its own sensor only: "
+            f"{', '.join(parts)}{tail} (--strict refuses them).")
+
+
+def own_estimate_absent(q_onboard, what: str) -> str | None:
+    """Why the device's own attitude ``q_onboard`` (N, 4) is no estimate, or None when it is
+    one (or there is none): no finite row, or every finite row within
+    ``CONSTANT_ONBOARD_RAD`` of the first (a constant, e.g. a driver's identity
+    placeholder). ``what`` names it in the sentence."""
+    if q_onboard is None:
+        return None
+    try:
+        q = np.asarray(q_onboard, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if q.ndim != 2 or q.shape[1] != 4 or q.shape[0] == 0:
+        return None
+    q = q[np.isfinite(q).all(axis=1)]
+    if q.shape[0] == 0:
+        return f"{what}: no finite sample, so no estimate of the device's own"
+    if q.shape[0] < 2:
+        return None
+    norm = np.linalg.norm(q, axis=1)
+    if np.any(norm == 0):
+        return None  # not unit quaternions: the Recording refuses them
+    u = q / norm[:, None]
+    angle = 2.0 * np.arccos(np.minimum(np.abs(u @ u[0]), 1.0))
+    if angle.max() > CONSTANT_ONBOARD_RAD:
+        return None
+    identity = abs(abs(u[0, 0]) - 1.0) < 1e-9
+    value = "the identity" if identity else f"[w, x, y, z] = {np.round(u[0], 6).tolist()}"
+    return (f"{what}: constant ({value}) over all {q.shape[0]} samples, which no estimator "
+            "gives: not an estimate")
 
 
 def cut_short(start: int, size: int, present: int, t: np.ndarray, assumed: list) -> dict:

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.io._common import build
 from gnomon.recording import Recording
 
 __all__ = ["read_broad", "broad_from_fields", "broad_trials", "broad_groups", "BROAD_FIELDS",
@@ -108,7 +109,8 @@ def read_broad(path: str | os.PathLike, *, with_position: bool = True) -> Record
 
     Raises :class:`InputError` naming the file and the field for a missing
     file, an unreadable file, a missing field, a wrong shape, a bad sampling
-    rate or values that fail the Recording checks (e.g. NaN in ``imu_gyr``).
+    rate or values that fail the Recording checks (a NaN sample of ``imu_gyr``,
+    ``imu_acc`` or ``imu_mag`` is dropped and counted, ``gnomon.io._common.build``).
     """
     path = Path(path)
     if not path.is_file():
@@ -144,18 +146,12 @@ def broad_from_fields(d: dict, path: Path, *, with_position: bool = True) -> Rec
     extra = {}
     if with_position and "opt_pos" in d:
         extra["pos_m"] = _array(d, "opt_pos", path, 3, n).astype(float)
-    try:
-        return Recording(
-            t=np.arange(n) / fs_hz, gyro=gyro, accel=accel, mag=mag, mag_unit="uT",
-            q_true=quat, mask=movement.astype(bool),
-            frames={"reference": "ENU", "body": "sensor"}, source=path.stem, extra=extra,
-        )
-    except InputError as err:
-        broad_name = {"gyro": "imu_gyr", "accel": "imu_acc", "mag": "imu_mag",
-                      "q_true": "opt_quat", "mask": "movement", "extra.pos_m": "opt_pos",
-                      "t": "sampling_rate"}
-        raise InputError(err.message, file=str(path), field=broad_name.get(err.field, err.field),
-                         row=err.row) from None
+    broad_name = {"gyro": "imu_gyr", "accel": "imu_acc", "mag": "imu_mag",
+                  "q_true": "opt_quat", "mask": "movement", "extra.pos_m": "opt_pos",
+                  "t": "sampling_rate"}
+    return build(path, broad_name, t=np.arange(n) / fs_hz, gyro=gyro, accel=accel, mag=mag,
+                 mag_unit="uT", q_true=quat, mask=movement.astype(bool),
+                 frames={"reference": "ENU", "body": "sensor"}, source=path.stem, extra=extra)
 
 
 def broad_trials(directory: str | os.PathLike) -> list[Path]:

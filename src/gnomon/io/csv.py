@@ -35,8 +35,11 @@ the column (as written in the file's header) and the row. **Row convention:**
 is row 1 (blank and comment lines not counted); the message also gives the
 line number in the file (1-based, header included), which is what an editor
 shows. Caught: empty file, no data rows, missing column, a row with a wrong
-number of cells, empty or non-numeric cell, NaN or infinity in a sensor or
-time column, a time stamp that does not increase strictly, an unknown unit.
+number of cells, empty or non-numeric cell, NaN or infinity in the time column, a time
+stamp that does not increase strictly, an unknown unit. A NaN or infinity in a sensor's
+cells drops that sample of that sensor only (counted in ``meta["dropped"]``,
+:mod:`gnomon.io._common`); read strictly (``gnomon.io.read(path, strict=True)``) it is an
+error naming the column and the row.
 
 A gyro log whose 99th-percentile rate exceeds 35 rad/s (2000 °/s — the
 full-scale of most MEMS gyros) while read as rad/s raises a
@@ -55,6 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.io._common import build, reading_strictly
 from gnomon.recording import MAG_UNITS_TO_TESLA, Recording
 
 __all__ = ["read_csv", "write_csv", "sample_events", "UnitWarning", "DEFAULT_COLUMNS",
@@ -151,10 +155,10 @@ class _Table:
         j = self.header.index(column)
         return np.array([r[j].strip() for r in self.rows], dtype=str)
 
-    def numbers(self, column: str, *, allow_missing: bool = False, rows=slice(None)
-                ) -> np.ndarray:
+    def numbers(self, column: str, *, allow_missing: bool = False, rows=slice(None),
+                nonfinite: bool = False) -> np.ndarray:
         """Column as float (the data rows ``rows``); a bad cell raises naming column and
-        row."""
+        row (``nan``/``inf`` too unless ``nonfinite`` or ``allow_missing``)."""
         index = np.arange(len(self.rows))[rows]
         s = self.strings(column)[rows]
         if allow_missing:
@@ -169,7 +173,7 @@ class _Table:
                     what = "empty cell" if cell == "" else f"not a number: {str(cell)!r}"
                     raise self.error(what, column, int(index[i])) from None
             raise  # pragma: no cover - astype and float disagree
-        if not allow_missing:
+        if not (allow_missing or nonfinite):
             bad = ~np.isfinite(values)
             if bad.any():
                 i = int(np.argmax(bad))
@@ -220,9 +224,9 @@ def read_csv(path: str | os.PathLike, columns: dict | None = None, gyro_unit: st
     mask = _mask(table, name, rows["gyro"], multi_rate) if has_mask else None
     _plausibility(path, gyro, gyro_unit, accel, accel_unit)
     try:
-        return Recording(
-            t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true, mask=mask,
-            meta=meta, **own_t,
+        return build(
+            path, {}, t=t, gyro=gyro, accel=accel, mag=mag, mag_unit=mag_unit, q_true=q_true,
+            mask=mask, meta=meta, **own_t,
             frames=frames if frames is not None else {"reference": "ENU", "body": "sensor"},
             source=path.stem if source is None else str(source),
         )
@@ -312,9 +316,12 @@ def _sensor_rows(table: _Table, name: dict, sensors: tuple) -> tuple[dict, bool]
 
 
 def _group(table: _Table, name: dict, key: str, rows: dict) -> np.ndarray:
-    """The three columns of sensor ``key`` in its rows, (N, 3) float."""
+    """The three columns of sensor ``key`` in its rows, (N, 3) float (NaN/inf kept for
+    ``build`` to drop, unless reading strictly)."""
     r = rows[key]
-    return np.column_stack([table.numbers(name[k], rows=r) for k in SENSOR_GROUPS[key]])
+    keep = not reading_strictly()
+    return np.column_stack([table.numbers(name[k], rows=r, nonfinite=keep)
+                            for k in SENSOR_GROUPS[key]])
 
 
 def _own_times(table: _Table, name: dict, t_rows: np.ndarray, rows: dict, mag, assumed: list
@@ -381,15 +388,18 @@ def _named(table: _Table, name: dict, rows: dict, multi_rate: bool, err: InputEr
 def _plausibility(path: Path, gyro: np.ndarray, gyro_unit: str, accel: np.ndarray,
                   accel_unit: str) -> None:
     """Warn (:class:`UnitWarning`) when the data look like another unit than declared."""
-    if gyro_unit == "rad/s":
-        p99 = float(np.percentile(np.linalg.norm(gyro, axis=1), 99))
+    rate = np.linalg.norm(gyro, axis=1)
+    force = np.linalg.norm(accel, axis=1)
+    rate, force = rate[np.isfinite(rate)], force[np.isfinite(force)]  # dropped later
+    if gyro_unit == "rad/s" and rate.size:
+        p99 = float(np.percentile(rate, 99))
         if p99 > GYRO_RAD_S_PLAUSIBLE_MAX:
             warnings.warn(
                 f"{path}: gyro 99th-percentile rate {p99:.1f} rad/s "
                 f"({math.degrees(p99):.0f} deg/s) is implausible; are the gyro columns "
                 f"in deg/s? Then pass gyro_unit='deg/s'.", UnitWarning, stacklevel=3)
-    if accel_unit == "m/s^2":
-        med = float(np.median(np.linalg.norm(accel, axis=1)))
+    if accel_unit == "m/s^2" and force.size:
+        med = float(np.median(force))
         if 0.5 < med < 1.5:
             warnings.warn(
                 f"{path}: median accelerometer magnitude {med:.3f} m/s^2 is near 1; are the "

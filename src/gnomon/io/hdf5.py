@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from gnomon.errors import InputError
+from gnomon.io._common import build
 from gnomon.recording import Recording
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "write_recording", "read_recording",
@@ -214,9 +215,6 @@ def read_recording(path: str | os.PathLike) -> Recording:
     except (OSError, KeyError, ValueError, TypeError, RuntimeError) as err:
         # h5py: "file signature not found", "truncated file", unreadable chunks, ...
         raise InputError(f"cannot read as HDF5 ({err})", file=str(path)) from None
-    try:
-        if frames is not None:
-            data["frames"] = frames
-        return Recording(mag_unit=mag_unit, source=source, extra=extra, meta=meta, **data)
-    except InputError as err:
-        raise err.with_file(str(path)) from None
+    if frames is not None:
+        data["frames"] = frames
+    return build(path, {}, mag_unit=mag_unit, source=source, extra=extra, meta=meta, **data)

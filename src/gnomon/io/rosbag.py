@@ -27,7 +27,9 @@ Frames and units (REP-103, REP-145): ``sensor_msgs/Imu`` is in the IMU's own fra
 up at rest) — taken as is, ``frames = {"reference": "ENU", "body": <frame_id>}``; its
 ``orientation`` is the IMU frame relative to an ENU world frame (REP-103/145), reordered
 from ROS's x, y, z, w to gnomon's ``[w, x, y, z]`` and slerped onto the gyro time stamps
-(a comparison series). All-zero orientations (an unset field) are taken as none.
+(a comparison series). All-zero orientations (an unset field) are taken as none, and so
+is a constant one (a driver's identity placeholder, e.g. on ``/imu/data_raw``;
+:func:`gnomon.io._common.own_estimate_absent`): ``meta["onboard_absent"]`` says why.
 ``MagneticField`` is in tesla (converted to µT) in its own ``frame_id``: a differing
 ``frame_id`` from the IMU's is stated in ``meta["assumed"]`` (no extrinsic is applied).
 """
@@ -93,7 +95,8 @@ def read_rosbag(path: str | os.PathLike, *, topic: str | None = None,
     bag = _scan(path, highlevel, typesys, topic, mag_topic, stamps)
     assumed: list[str] = []
     imu_topic, m_topic = bag.imu_topic, bag.mag_topic
-    t, gyro, accel, q_onboard, onboard_desc = _imu(path, bag, stamps, onboard, assumed)
+    t, gyro, accel, q_onboard, onboard_desc, absent = _imu(path, bag, stamps, onboard,
+                                                           assumed)
     imu_frame = sorted(bag.frames_seen[imu_topic])
     if m_topic is None and mag_topic is None:
         assumed.append(f"No {MAG_TYPE} topic in the bag: the recording has no magnetometer.")
@@ -113,7 +116,7 @@ def read_rosbag(path: str | os.PathLike, *, topic: str | None = None,
         "available": {"imu": bag.by_type[IMU_TYPE], "mag": bag.by_type[MAG_TYPE],
                       "topics": {n: sorted({c.msgtype for c in cs})
                                  for n, cs in bag.conns.items()}},
-        "bag_duration_s": bag.duration_s,
+        "bag_duration_s": bag.duration_s, **({"onboard_absent": absent} if absent else {}),
     }
     names = {"t": f"{imu_topic}.header.stamp", "gyro": f"{imu_topic}.angular_velocity",
              "accel": f"{imu_topic}.linear_acceleration", "mag": f"{m_topic}.magnetic_field",
@@ -230,8 +233,9 @@ def _collect(reader, sel: list, imu_topic: str, m_topic: str | None, stamps: str
 
 
 def _imu(path: Path, bag: _Scan, stamps: str, onboard: bool, assumed: list) -> tuple:
-    """``(t, gyro, accel, q_onboard, onboard description)``: at least 2 messages; the
-    orientation (unless its covariance says none, or all zero) slerped onto ``t``."""
+    """``(t, gyro, accel, q_onboard, onboard description, why there is none)``: at least 2
+    messages; the orientation (unless its covariance says none, or all zero) slerped onto
+    ``t``."""
     imu_topic = bag.imu_topic
     imu = np.frombuffer(bag.imu_rows, dtype=float).reshape(-1, 12)
     if imu.shape[0] < 2:
@@ -245,12 +249,18 @@ def _imu(path: Path, bag: _Scan, stamps: str, onboard: bool, assumed: list) -> t
     gyro, accel, q, cov0 = v[:, 0:3], v[:, 3:6], v[:, 6:10], v[:, 10]
     q_onboard = None
     onboard_desc = None
+    absent = None
     has_q = (cov0 != -1) & (np.abs(q).sum(axis=1) > 0)
     if onboard and has_q.any():
         q_onboard = onboard_on(path, f"{imu_topic}.orientation", t[has_q], q[has_q], t)
         onboard_desc = f"{imu_topic}.orientation (x, y, z, w reordered to w, x, y, z), " \
                        "slerped onto the gyro time stamps"
-    return t, gyro, accel, q_onboard, onboard_desc
+    elif onboard:
+        absent = (f"{imu_topic}.orientation: orientation_covariance[0] = -1 in "
+                  f"{int((cov0 == -1).sum())} and an all-zero orientation in "
+                  f"{int(((cov0 != -1) & ~has_q).sum())} of {t.size} messages (REP-145: "
+                  "no orientation estimate)")
+    return t, gyro, accel, q_onboard, onboard_desc, absent
 
 
 def _mag(path: Path, bag: _Scan, mag_topic: str | None, imu_frame: list, assumed: list

@@ -8,8 +8,10 @@ file). Then the device's own estimate (``q_onboard``: what it is, how many gyro 
 it covers), the truth when the log has one, the duration, the frames, the device, what
 else the file offers (``available``: topics and instances with message counts), whether
 the file is cut short (``truncated``: ``{"at_byte", "message_bytes", "bytes_present",
-"data_up_to_s"}`` or None; ULog, DataFlash) and the reader's ``assumed`` sentences. The
-result is JSON-able.
+"data_up_to_s"}`` or None; ULog, DataFlash), the samples dropped for a non-finite value
+(``dropped``: ``{sensor: count}``, sensors with drops only, or None), why there is no own
+estimate (``onboard_absent``, or None) and the reader's ``assumed`` sentences. The result
+is JSON-able. :func:`reader_notes` is the part ``gnomon estimate`` shows.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from gnomon.io._common import GAP_FACTOR, gaps
 
-__all__ = ["summarise"]
+__all__ = ["summarise", "reader_notes"]
 
 _UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
 _ORIGIN = {"gyro": ("topic", "imu"), "accel": ("topic", "imu"), "mag": ("mag_topic", "mag")}
@@ -41,6 +43,7 @@ def summarise(rec, path: str = "", fmt: str = "") -> dict:
             "start_s": float(t[0]), "end_s": float(t[-1]),
             "gaps": g["count"], "longest_gap_s": g["longest_s"],
             "from": str(origin) if origin is not None else None,
+            "dropped": int((meta.get("dropped") or {}).get(name, 0)),
         })
         ends += [float(t[0]), float(t[-1])]
 
@@ -56,8 +59,21 @@ def summarise(rec, path: str = "", fmt: str = "") -> dict:
         "single_rate": rec.single_rate, "sensors": sensors,
         "onboard": series(rec.q_onboard, meta.get("onboard") or "the device's own estimate"),
         "onboard_gravity_deg": meta.get("onboard_gravity_deg"),
+        "onboard_absent": meta.get("onboard_absent"),
         "truth": series(rec.q_true, "q_true"),
         "device": meta.get("device"), "available": meta.get("available"),
-        "truncated": meta.get("truncated"),
+        "truncated": meta.get("truncated"), "dropped": meta.get("dropped") or None,
         "assumed": list(meta.get("assumed", [])), "gap_factor": GAP_FACTOR,
     }
+
+
+def reader_notes(rec) -> dict:
+    """What the reader of ``rec`` noted, for a command's output: ``notes`` (the ``assumed``
+    sentences, which say the truncation and the drops in words too), and when there are
+    any ``dropped`` (``{sensor: count}``) and ``truncated`` (as in :func:`summarise`)."""
+    meta = rec.meta
+    out = {"notes": list(meta.get("assumed", []))}
+    for key in ("dropped", "truncated"):
+        if meta.get(key):
+            out[key] = meta[key]
+    return out
