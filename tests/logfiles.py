@@ -46,7 +46,24 @@ def write_rosbags(tmp: Path, *, imu_hz=200.0, mag_hz=50.0, seconds=2.0, t0=100.0
     return out
 
 
-def _write_bag(tmp, kind, t_i, t_m, q, gyro, accel, mag, extra_imu_topic):
+def write_ros1_bag(tmp: Path, *, imu_hz=200.0, mag_hz=50.0, seconds=2.0, t0=100.0,
+                   mag_nan=0, orientation=None, cov0=0.0) -> Path:
+    """One ROS 1 ``.bag`` as :func:`write_rosbags` makes it, imperfect on request: the first
+    ``mag_nan`` MagneticField messages NaN (a driver before its magnetometer is up, as in
+    imu_tools' ``phidgets_imu_upside_down.bag``), ``orientation`` a constant ``[w, x, y,
+    z]`` in every Imu message instead of the motion's (a raw driver's placeholder, as on
+    ``/imu/data_raw`` of ``sparkfun_razor.bag``) and ``orientation_covariance[0] = cov0``."""
+    t_i = t0 + np.arange(int(seconds * imu_hz)) / imu_hz
+    t_m = t0 + 0.0013 + np.arange(int(seconds * mag_hz)) / mag_hz
+    q, gyro, accel, _ = motion(t_i - t0)
+    _, _, _, mag = motion(t_m - t0)
+    mag[:mag_nan] = np.nan
+    if orientation is not None:
+        q = np.tile(np.asarray(orientation, dtype=float), (t_i.size, 1))
+    return _write_bag(tmp, "ros1", t_i, t_m, q, gyro, accel, mag, False, cov0=cov0)
+
+
+def _write_bag(tmp, kind, t_i, t_m, q, gyro, accel, mag, extra_imu_topic, cov0=0.0):
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
@@ -70,7 +87,7 @@ def _write_bag(tmp, kind, t_i, t_m, q, gyro, accel, mag, extra_imu_topic):
     def imu_msg(k):
         return Imu(header=header(t_i[k], "imu_link", k),
                    orientation=Q(x=q[k, 1], y=q[k, 2], z=q[k, 3], w=q[k, 0]),
-                   orientation_covariance=np.zeros(9),
+                   orientation_covariance=np.array([cov0] + [0.0] * 8),
                    angular_velocity=V3(x=gyro[k, 0], y=gyro[k, 1], z=gyro[k, 2]),
                    angular_velocity_covariance=np.zeros(9),
                    linear_acceleration=V3(x=accel[k, 0], y=accel[k, 1], z=accel[k, 2]),

@@ -421,7 +421,8 @@ def own_estimate_absent(q_onboard, what: str) -> str | None:
     if angle.max() > CONSTANT_ONBOARD_RAD:
         return None
     identity = abs(abs(u[0, 0]) - 1.0) < 1e-9
-    value = "the identity" if identity else f"[w, x, y, z] = {np.round(u[0], 6).tolist()}"
+    q0 = u[0] if u[0, 0] >= 0 else -u[0]
+    value = "the identity" if identity else f"[w, x, y, z] = {(np.round(q0, 6) + 0.0).tolist()}"
     return (f"{what}: constant ({value}) over all {q.shape[0]} samples, which no estimator "
             "gives: not an estimate")
 
