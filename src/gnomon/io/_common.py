@@ -310,7 +310,7 @@ def build(path, names: dict, *, strict: bool | None = None, **fields) -> Recordi
                 meta["assumed"] = list(meta.get("assumed", [])) + [
                     _dropped_sentence(dropped, first, names)]
         why = own_estimate_absent(fields.get("q_onboard"),
-                                  meta.get("onboard") or names.get("q_onboard") or
+                                  names.get("q_onboard") or meta.get("onboard") or
                                   "the device's own estimate (q_onboard)")
         if why is not None:
             fields = {**fields, "q_onboard": None}
@@ -423,8 +423,8 @@ def own_estimate_absent(q_onboard, what: str) -> str | None:
     identity = abs(abs(u[0, 0]) - 1.0) < 1e-9
     q0 = u[0] if u[0, 0] >= 0 else -u[0]
     value = "the identity" if identity else f"[w, x, y, z] = {(np.round(q0, 6) + 0.0).tolist()}"
-    return (f"{what}: constant ({value}) over all {q.shape[0]} samples, which no estimator "
-            "gives: not an estimate")
+    return (f"{what}: constant ({value}) over all {q.shape[0]} samples: a placeholder, not "
+            "an estimate")
 
 
 def cut_short(start: int, size: int, present: int, t: np.ndarray, assumed: list) -> dict:

@@ -189,7 +189,7 @@ def _vec(d: dict, names, scale=None) -> np.ndarray:
     cols = [d[n] for n in names]
     out = np.empty((cols[0].size, len(names)))
     block = _block(cols)
-    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf are refused by series()
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf: dropped by build()
         if block is not None:  # the same arithmetic as below (in the fields' type)
             np.multiply(block, np.ones(len(names), block.dtype) if scale is None
                         else np.array(scale, block.dtype), out=out, casting="unsafe")
