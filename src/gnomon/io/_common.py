@@ -387,7 +387,7 @@ def _dropped_sentence(dropped: dict, first: dict, names: dict) -> str:
     parts = []
     for k in ("gyro", "accel", "mag"):
         if k in dropped:
-            log = f" ({names[k]})" if names.get(k) else ""
+            log = f" ({names[k]})" if names.get(k) not in (None, "", k) else ""
             parts.append(f"{k}{log} {dropped[k]} (the first at t = {first[k]:.6g} s)")
     tail = "; a gyro sample takes its row of the truth and the own estimate with it" \
         if "gyro" in dropped else ""
