@@ -207,3 +207,15 @@ def test_cli_estimate_and_benchmark_dir_align_auto(tmp_path, mocap, capsys):
     assert [t["trial"] for t in res["alignment"]] == ["mocap"]
     assert res["mean"]["robust-ahrs"]["total_deg"] == pytest.approx(
         out["errors"]["total_deg"], abs=1e-6)
+
+
+def test_auto_finds_a_clock_offset_beyond_the_first_search():
+    t, q_rs, gyro, accel, mag = _motion(40.0)
+    rec = Recording(t=t, gyro=gyro, accel=accel, mag=mag,
+                    q_true=_mocap(t, q_rs, lag_s=-1.734), source="late")
+    with pytest.raises(InputError, match="correlate only"):  # within ±0.25 s
+        align_truth(rec, ("lag", "body"))
+    q_al, info = align_truth(rec, "auto")
+    assert info["lag_s"] == pytest.approx(-1.734, abs=1e-3)
+    assert info["applied"] == ["lag", "body", "world"]
+    assert _truth_error_deg(q_al, q_rs) < 0.3

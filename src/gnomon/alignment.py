@@ -65,7 +65,7 @@ if TYPE_CHECKING:
 __all__ = ["ALIGN_OPTIONS", "quat_at", "body_rate", "estimate_lag",
            "estimate_body_misalignment", "estimate_world", "align_truth", "parse_align",
            "apply_alignment", "save_alignment", "load_alignment", "fit_for", "align_names",
-           "MIN_EXCITATION", "MAX_ENU_TILT_DEG",
+           "MIN_EXCITATION", "MAX_ENU_TILT_DEG", "WIDE_LAG_S",
            "MIN_LAG_CORRELATION"]
 
 #: what ``align_truth`` can correct (``--align``), in the order it applies them
@@ -75,6 +75,10 @@ ALIGN_OPTIONS = ("lag", "body", "world")
 MIN_EXCITATION = 0.05
 #: the smallest rate-magnitude correlation with which a lag counts as determined
 MIN_LAG_CORRELATION = 0.5
+#: ``auto`` searches the lag within ±``max_lag_s`` (0.25 s), then, when the best lies on
+#: that edge or correlates below ``MIN_LAG_CORRELATION``, within ±this (s; at most a
+#: quarter of the recording)
+WIDE_LAG_S = 5.0
 #: ``auto`` keeps the world of a truth its reader gives in ENU unless the accelerometer's
 #: up is further than this from its +z (deg): then the truth is in some other world
 MAX_ENU_TILT_DEG = 5.0
@@ -187,14 +191,20 @@ def _lag_on_grid(t, grid, max_lag_s, step_s) -> dict:
     def corr(L):
         return _corr(r, np.linalg.norm(_gyro_mean(t, cum, gaps, a - L, b - L), axis=1))
 
-    coarse = np.arange(-max_lag_s, max_lag_s + 1e-9, 0.005)
+    step = max(0.005, max_lag_s / 50.0)  # a wide search: coarse first, then 5 ms steps
+    coarse = np.arange(-max_lag_s, max_lag_s + 1e-9, step)
     c = np.array([corr(L) for L in coarse])
     if not np.isfinite(c).any():
         raise InputError("no overlap of the gyro with a valid truth to find the lag",
                          field="q_true")
     k = int(np.nanargmax(c))
     edge = k in (0, coarse.size - 1)
-    fine = coarse[k] + np.arange(-0.006, 0.006 + 1e-9, 0.0005)
+    best = float(coarse[k])
+    if step > 0.005:
+        mid = best + np.arange(-step, step + 1e-9, 0.005)
+        mid = mid[np.abs(mid) <= max_lag_s + 1e-12]
+        best = float(mid[int(np.nanargmax([corr(L) for L in mid]))])
+    fine = best + np.arange(-0.006, 0.006 + 1e-9, 0.0005)
     fine = fine[np.abs(fine) <= max_lag_s + 1e-12]
     cf = np.array([corr(L) for L in fine])
     j = int(np.nanargmax(cf))
@@ -386,10 +396,12 @@ def align_truth(rec: Recording, align=ALIGN_OPTIONS, max_lag_s: float = 0.25,
     becomes ``q_true(t + lag_s)``), ``"body"`` turns it onto the sensor's axes
     (``q_true ⊗ q_bs``, after taking its conjugate when the reference proves inverted),
     ``"world"`` turns its world onto ENU (``q_rw ⊗ q_true``), in that order.
-    ``align="auto"``: all three fitted, those the motion determines applied, the others
-    listed in ``refused`` with the reason; a component named in ``align`` that the motion
-    does not determine raises ``InputError`` with the reason. Empty ``align``: the truth
-    unchanged, the lag and body fit still reported. A dict (a saved fit,
+    ``align="auto"``: all three fitted (the lag searched within ``±WIDE_LAG_S`` when the
+    best within ``±max_lag_s`` lies on its edge or correlates poorly), those the motion
+    determines applied, the others listed in ``refused`` with the reason; a component
+    named in ``align`` that the motion does not determine raises ``InputError`` with the
+    reason. Empty ``align``: the truth unchanged, the lag and body fit still reported. A
+    dict (a saved fit,
     :func:`load_alignment`): applied as it is (:func:`apply_alignment`), nothing fitted.
 
     Returns ``(q_true (N, 4), info)``; ``info`` (JSON-able): ``align`` (what was asked),
@@ -416,6 +428,11 @@ def align_truth(rec: Recording, align=ALIGN_OPTIONS, max_lag_s: float = 0.25,
     t, gyro, q = rec.t, rec.gyro, rec.q_true
     grid = _grid_rates(t, gyro, q, step_s)
     lag = _lag_on_grid(t, grid, max_lag_s, step_s)
+    wide = min(WIDE_LAG_S, 0.25 * float(t[-1] - t[0]))
+    if auto and wide > max_lag_s and (lag["on_search_edge"] or  # clocks further apart
+                                      not lag["correlation"] >= MIN_LAG_CORRELATION):
+        max_lag_s = wide
+        lag = _lag_on_grid(t, grid, max_lag_s, step_s)
     refused: dict = {}
     if "lag" in wanted:
         if lag["on_search_edge"]:
