@@ -26,17 +26,9 @@ numbers are computed:
 * ``compare``: BROAD's metric between two estimates (gnomon's and the device's own,
   ``gnomon estimate --compare onboard``), with their constant heading offset removed.
 
-Alignment of a measured reference to the sensor (the one place it is done; ``gnomon
-benchmark --align``), from the gyro against the reference's own angular rate:
-
-* ``quat_at``: a quaternion series (NaN rows) slerped at other times.
-* ``body_rate``: the body angular rate of a quaternion series (finite differences).
-* ``estimate_lag``: the time offset of the reference, by cross-correlating the rate
-  magnitudes (sub-sample: parabola through the best three lags).
-* ``estimate_body_misalignment``: the constant rotation between the sensor and the
-  reference's body, least squares on the rate vectors (closed-form SVD, gyro bias
-  removed by centring).
-* ``align_truth``: both, applied to a recording's ``q_true``.
+The alignment of a measured reference to the sensor (``quat_at``, ``body_rate``,
+``estimate_lag``, ``estimate_body_misalignment``, ``align_truth``) lives in
+:mod:`gnomon.alignment`; the names stay importable from here.
 
 ``score_run`` takes the RMS of the error in degrees, ``score``/``score_broad`` convert
 the RMS in radians to degrees (``rms_deg``); the two differ in the last digit only, and
@@ -49,6 +41,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gnomon.alignment import (
+    ALIGN_OPTIONS,
+    align_truth,
+    body_rate,
+    estimate_body_misalignment,
+    estimate_lag,
+    quat_at,
+)
 from gnomon.errors import InputError
 from gnomon.rotation import error_angle, euler_from_quat, quat_conj, quat_mul
 
@@ -349,230 +349,3 @@ def compare_onboard(rec: Recording, q_est) -> tuple[dict, np.ndarray]:
     ok = np.all(np.isfinite(rec.q_onboard), axis=1)
     matched[ok] = quat_mul(quat_from_rotvec(np.array([0.0, 0.0, psi])), rec.q_onboard[ok])
     return out, matched
-
-
-# ---------------------------------------------------------------- alignment to a reference
-#: what ``align_truth`` can correct (``gnomon benchmark --align``)
-ALIGN_OPTIONS = ("lag", "body")
-_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
-
-
-def quat_at(t, q, t_new) -> np.ndarray:
-    """The series ``q`` (N, 4) at times ``t`` (N,) s, increasing, slerped at ``t_new`` (M,):
-    NaN outside ``[t[0], t[-1]]`` and where either neighbouring row is NaN."""
-    from gnomon.rotation import quat_slerp
-
-    t = np.asarray(t, dtype=float)
-    q = np.asarray(q, dtype=float)
-    t_new = np.asarray(t_new, dtype=float)
-    out = np.full((t_new.size, 4), np.nan)
-    if t.size < 2:
-        return out
-    i = np.clip(np.searchsorted(t, t_new, side="right") - 1, 0, t.size - 2)
-    frac = (t_new - t[i]) / (t[i + 1] - t[i])
-    ok = (t_new >= t[0]) & (t_new <= t[-1])
-    ok &= np.all(np.isfinite(q[i]), axis=1) & np.all(np.isfinite(q[i + 1]), axis=1)
-    if ok.any():
-        out[ok] = quat_slerp(q[i[ok]], q[i[ok] + 1], np.clip(frac[ok], 0.0, 1.0))
-    return out
-
-
-def body_rate(t, q) -> tuple[np.ndarray, np.ndarray]:
-    """Body angular rate of the series ``q_rb`` (N, 4) at ``t`` (N,) s: ``(t_mid (N-1,),
-    w_b (N-1, 3) rad/s)``, ``w = log(conj(q_k) ⊗ q_k+1) / dt`` at the interval midpoints
-    (NaN where a row is NaN)."""
-    from gnomon.rotation import rotvec_from_quat
-
-    t = np.asarray(t, dtype=float)
-    qs, _, bad = _pair(q, _IDENTITY)
-    d = quat_mul(quat_conj(qs[:-1]), qs[1:])
-    w = rotvec_from_quat(d) / np.diff(t)[:, None]
-    w[bad[:-1] | bad[1:]] = np.nan
-    return 0.5 * (t[:-1] + t[1:]), w
-
-
-def _gyro_integral(t, gyro):
-    """Cumulative trapezoid integral of the gyro (N, 3) and the gyro's gaps (intervals
-    longer than 5 median intervals) as (start, end) arrays."""
-    dt = np.diff(t)
-    cum = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (gyro[1:] + gyro[:-1]) *
-                                                       dt[:, None], axis=0)])
-    long = dt > 5.0 * np.median(dt)
-    return cum, t[:-1][long], t[1:][long]
-
-
-def _gyro_mean(t, cum, gaps, a, b) -> np.ndarray:
-    """Mean gyro (K, 3) over the intervals ``[a, b]`` (K,) from the cumulative integral;
-    NaN outside the gyro's span or across a gap."""
-    out = np.stack([(np.interp(b, t, cum[:, k]) - np.interp(a, t, cum[:, k])) / (b - a)
-                    for k in range(3)], axis=1)
-    bad = (a < t[0]) | (b > t[-1])
-    for g0, g1 in zip(*gaps, strict=True):
-        bad |= (a < g1) & (b > g0)
-    out[bad] = np.nan
-    return out
-
-
-def _grid_rates(t, gyro, q_true, step_s):
-    """The truth's body rate on a uniform grid (its midpoints ``tm``, intervals of
-    ``step_s``) and what is needed to average the gyro over the same intervals."""
-    ok = np.all(np.isfinite(q_true), axis=1)
-    if ok.sum() < 3:
-        raise InputError("too few samples with a truth to align it", field="q_true")
-    lo, hi = t[ok][0], t[ok][-1]
-    grid = np.arange(lo, hi, step_s)
-    tm, w_ref = body_rate(grid, quat_at(t, q_true, grid))
-    cum, g0, g1 = _gyro_integral(t, gyro)
-    return tm, w_ref, (cum, (g0, g1))
-
-
-def _corr(x, y) -> float:
-    ok = np.isfinite(x) & np.isfinite(y)
-    if ok.sum() < 10:
-        return float("nan")
-    x, y = x[ok] - x[ok].mean(), y[ok] - y[ok].mean()
-    den = np.sqrt((x * x).sum() * (y * y).sum())
-    return float((x * y).sum() / den) if den > 0 else float("nan")
-
-
-def estimate_lag(t, gyro, q_true, max_lag_s: float = 0.25, step_s: float = 0.01) -> dict:
-    """The time offset of a reference ``q_true`` (N, 4; NaN rows) against the gyro (N, 3)
-    at ``t`` (N,): the lag ``L`` (s) such that the truth at gyro time ``t`` is
-    ``q_true(t + L)``. Found by maximising the correlation of the reference's rate
-    magnitude (on a grid of ``step_s``) with the gyro's mean rate magnitude over the same
-    intervals shifted by ``-L`` (gyro bias and body misalignment leave it unchanged to
-    first order): ``|L| <= max_lag_s`` in 5 ms steps, then 0.5 ms steps around the best,
-    refined by a parabola through the best three. Returns ``{"lag_s", "correlation",
-    "correlation_at_zero", "on_search_edge"}``."""
-    t = np.asarray(t, dtype=float)
-    grid = _grid_rates(t, np.asarray(gyro, dtype=float), np.asarray(q_true, dtype=float),
-                       step_s)
-    return _lag_on_grid(t, grid, max_lag_s, step_s)
-
-
-def _lag_on_grid(t, grid, max_lag_s, step_s) -> dict:
-    tm, w_ref, (cum, gaps) = grid
-    r = np.linalg.norm(w_ref, axis=1)
-    a, b = tm - 0.5 * step_s, tm + 0.5 * step_s
-
-    def corr(L):
-        return _corr(r, np.linalg.norm(_gyro_mean(t, cum, gaps, a - L, b - L), axis=1))
-
-    coarse = np.arange(-max_lag_s, max_lag_s + 1e-9, 0.005)
-    c = np.array([corr(L) for L in coarse])
-    if not np.isfinite(c).any():
-        raise InputError("no overlap of the gyro with a valid truth to find the lag",
-                         field="q_true")
-    k = int(np.nanargmax(c))
-    edge = k in (0, coarse.size - 1)
-    fine = coarse[k] + np.arange(-0.006, 0.006 + 1e-9, 0.0005)
-    fine = fine[np.abs(fine) <= max_lag_s + 1e-12]
-    cf = np.array([corr(L) for L in fine])
-    j = int(np.nanargmax(cf))
-    lag = float(fine[j])
-    if 0 < j < fine.size - 1 and np.all(np.isfinite(cf[j - 1:j + 2])):
-        den = cf[j - 1] - 2.0 * cf[j] + cf[j + 1]
-        if den < 0:
-            lag += float(0.5 * (cf[j - 1] - cf[j + 1]) / den * 0.0005)
-    return {"lag_s": lag, "correlation": float(cf[j]), "correlation_at_zero": corr(0.0),
-            "on_search_edge": bool(edge)}
-
-
-def estimate_body_misalignment(t, gyro, q_true, lag_s: float = 0.0, step_s: float = 0.01
-                               ) -> dict:
-    """The constant rotation ``q_bs`` from the sensor frame s (the gyro's) to the body
-    frame b of a reference ``q_true = q_rb`` (N, 4), with the truth at gyro time ``t`` taken
-    at ``t + lag_s``: least squares ``w_ref ≈ R_bs (w_gyro - bias)`` over the reference's
-    rate on a grid of ``step_s`` and the gyro's mean over the same intervals (centred:
-    a constant gyro bias is removed, closed-form SVD (Kabsch); one pass drops the
-    intervals whose residual exceeds 4 times the median, e.g. differentiated capture
-    glitches). The aligned truth is ``q_rs = q_rb ⊗ q_bs``.
-
-    Returns ``{"q_bs", "misalignment_deg", "rotvec_deg" (of q_bs), "gyro_bias_deg_s",
-    "rate_rms_deg_s" (residual), "intervals", "excitation"}`` (``excitation``: the
-    smallest over the largest singular value of the rate correlation; near 0 the
-    rotation is not observable, e.g. a rotation about one axis only)."""
-    t = np.asarray(t, dtype=float)
-    grid = _grid_rates(t, np.asarray(gyro, dtype=float), np.asarray(q_true, dtype=float),
-                       step_s)
-    return _misalignment_on_grid(t, grid, lag_s, step_s)
-
-
-def _misalignment_on_grid(t, grid, lag_s, step_s) -> dict:
-    from gnomon.rotation import quat_from_dcm, rotvec_from_quat
-
-    tm, w_ref, (cum, gaps) = grid
-    g = _gyro_mean(t, cum, gaps, tm - 0.5 * step_s - lag_s, tm + 0.5 * step_s - lag_s)
-    ok = np.all(np.isfinite(w_ref), axis=1) & np.all(np.isfinite(g), axis=1)
-    if ok.sum() < 10:
-        raise InputError("too few intervals with both a truth and a gyro to align the body",
-                         field="q_true")
-    A, B = w_ref[ok], g[ok]
-
-    def solve(A, B):
-        a0, b0 = A.mean(axis=0), B.mean(axis=0)
-        H = (B - b0).T @ (A - a0)
-        U, S, Vt = np.linalg.svd(H)
-        d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-        R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-        return R, a0, b0, S
-
-    R, a0, b0, S = solve(A, B)
-    res = np.linalg.norm((A - a0) - (B - b0) @ R.T, axis=1)
-    keep = res <= 4.0 * np.median(res)
-    if keep.sum() >= 10 and not keep.all():
-        A, B = A[keep], B[keep]
-        R, a0, b0, S = solve(A, B)
-        res = np.linalg.norm((A - a0) - (B - b0) @ R.T, axis=1)
-    q_bs = quat_from_dcm(R)
-    rv = rotvec_from_quat(q_bs)
-    bias = b0 - R.T @ a0
-    return {"q_bs": q_bs, "misalignment_deg": float(np.degrees(np.linalg.norm(rv))),
-            "rotvec_deg": np.degrees(rv).tolist(), "gyro_bias_deg_s": np.degrees(bias).tolist(),
-            "rate_rms_deg_s": float(np.degrees(np.sqrt(np.mean(res * res)))),
-            "intervals": int(A.shape[0]), "excitation": float(S[-1] / S[0])}
-
-
-def align_truth(rec: Recording, align=ALIGN_OPTIONS, max_lag_s: float = 0.25,
-                step_s: float = 0.01) -> tuple[np.ndarray, dict]:
-    """``rec.q_true`` aligned to the sensor, as every method is then scored against it:
-    with ``"lag"`` in ``align`` shifted in time by ``estimate_lag`` (the truth at gyro
-    time ``t`` becomes ``q_true(t + lag_s)``), with ``"body"`` turned onto the sensor's
-    axes by ``estimate_body_misalignment`` (``q_true ⊗ q_bs``), in that order. Empty
-    ``align``: the truth unchanged, the fit still reported.
-
-    Returns ``(q_true (N, 4), info)``; ``info`` (JSON-able): ``align`` (what was applied),
-    ``lag_s``, ``lag_correlation``, ``misalignment_deg``, ``misalignment_rotvec_deg``,
-    ``gyro_bias_deg_s``, ``rate_rms_deg_s_before`` (gyro vs reference rate, nothing
-    corrected), ``rate_rms_deg_s`` (after the fit), ``intervals``, ``excitation``.
-    Raises ``InputError`` when ``rec`` has no truth or too little overlap."""
-    align = tuple(align)
-    unknown = [a for a in align if a not in ALIGN_OPTIONS]
-    if unknown:
-        raise InputError(f"unknown alignment {unknown}; use {', '.join(ALIGN_OPTIONS)}",
-                         field="align")
-    if rec.q_true is None:
-        raise InputError("no truth to align", field="q_true", file=rec.source or None)
-    t, gyro, q = rec.t, rec.gyro, rec.q_true
-    grid = _grid_rates(t, gyro, q, step_s)
-    lag = _lag_on_grid(t, grid, max_lag_s, step_s)
-    lag_s = lag["lag_s"] if "lag" in align else 0.0
-    body = _misalignment_on_grid(t, grid, lag_s, step_s)
-    tm, w_ref, (cum, gaps) = grid
-    g0 = _gyro_mean(t, cum, gaps, tm - 0.5 * step_s, tm + 0.5 * step_s)
-    before = np.linalg.norm(w_ref - g0, axis=1)
-    before = before[np.isfinite(before)]
-    out = quat_at(t, q, t + lag_s) if "lag" in align else q.copy()
-    if "body" in align:
-        ok = np.all(np.isfinite(out), axis=1)
-        out[ok] = quat_mul(out[ok], body["q_bs"])
-    info = {"align": list(align), "lag_s": lag["lag_s"], "lag_correlation": lag["correlation"],
-            "lag_on_search_edge": lag["on_search_edge"],
-            "misalignment_deg": body["misalignment_deg"],
-            "misalignment_rotvec_deg": body["rotvec_deg"],
-            "gyro_bias_deg_s": body["gyro_bias_deg_s"],
-            "rate_rms_deg_s_before": float(np.degrees(np.sqrt(np.mean(before ** 2))))
-            if before.size else float("nan"),
-            "rate_rms_deg_s": body["rate_rms_deg_s"], "intervals": body["intervals"],
-            "excitation": body["excitation"]}
-    return out, info

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from gnomon.alignment import align_names
 from gnomon.benchmark.methods import default_filters, make_methods, method_names
 from gnomon.benchmark.scoring import group_means, means, speed
 from gnomon.benchmark.trials import parse_align, run_trials
@@ -50,6 +51,6 @@ def run_broad(data_dir, filters: Sequence[str] | None = None,
            "mean": means(rows, names), "groups": group_means(rows, groups_of, names),
            "samples_per_s": speed(timing), "errors": errors}
     if align:
-        out["align"] = list(align)
+        out["align"] = align_names(align)
         out["alignment"] = alignment
     return out

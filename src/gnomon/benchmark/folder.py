@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from gnomon.alignment import align_names
 from gnomon.benchmark.methods import default_anchors, default_filters, make_methods, method_names
 from gnomon.benchmark.scoring import alignment_stats, means, score_trial, speed
 from gnomon.benchmark.trials import parse_align, run_trials
@@ -94,7 +95,7 @@ def run_benchmark(data_dir, filters: Sequence[str] | None = None,
     rows, errors, timing, alignment = run_trials(
         [(n, lambda r=r: r) for n, r in recs], methods, n_trials=len(recs), align=align,
         scorer=score_trial, desc=root.name, progress=progress)
-    out = {"metric": "broad", "benchmark": "dir", "data": str(root), "align": list(align),
+    out = {"metric": "broad", "benchmark": "dir", "data": str(root), "align": align_names(align),
            "trials": rows, "mean": means(rows, names), "groups": {},
            "skipped": sorted(skipped, key=lambda s: s["trial"]),
            "samples_per_s": speed(timing), "errors": errors}

@@ -1,11 +1,14 @@
 """The run loop of every benchmark: each method on each trial, scored, failures kept.
 
-**Alignment** (``align``, ``gnomon.metrics.align_truth``): fitted once per trial from the
-gyro against the reference's own angular rate, applied to the truth before any method
-is scored, so every method is scored against the same corrected truth: ``lag`` shifts
-the truth in time (the residual clock offset), ``body`` turns it onto the sensor's axes
-(the constant rotation between the sensor and the motion-capture marker body). Nothing
-is fitted to any estimate; no heading offset is removed.
+**Alignment** (``align``, :func:`gnomon.alignment.align_truth`): fitted once per trial
+from the gyro (and, for ``world``, the accelerometer and magnetometer) against the
+reference, applied to the truth before any method is scored, so every method is scored
+against the same corrected truth: ``lag`` shifts the truth in time (the residual clock
+offset), ``body`` turns it onto the sensor's axes (the constant rotation between the
+sensor and the motion-capture marker body), ``world`` turns the reference's world onto
+ENU; ``auto`` applies those the motion determines; a saved fit (``--align FILE.json``)
+is applied per trial as it is. Nothing is fitted to any estimate; no heading offset is
+removed.
 
 A method that fails on a trial is recorded in ``errors`` and the run goes on; so is a
 trial that cannot be read or aligned.
@@ -15,18 +18,18 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from typing import NamedTuple
 
+from gnomon.alignment import align_truth, fit_for, parse_align
 from gnomon.benchmark.methods import Method
 from gnomon.benchmark.scoring import nees
-from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate
-from gnomon.metrics import ALIGN_OPTIONS, align_truth, score_broad
+from gnomon.metrics import score_broad
 from gnomon.progress import Progress
 from gnomon.recording import Recording
 
-__all__ = ["parse_align", "run_trials", "Scored", "Trial"]
+__all__ = ["parse_align", "run_trials", "Scored", "Trial"]  # parse_align: gnomon.alignment
 
 #: a trial: ``(name, load)``, ``load()`` returning its recording
 Trial = tuple[str, Callable[[], Recording]]
@@ -41,25 +44,13 @@ class Scored(NamedTuple):
     alignment: list    #: ``{"trial", **align_truth's fit}`` of every aligned trial
 
 
-def parse_align(text: str | Sequence[str] | None) -> tuple[str, ...]:
-    """``"body,lag"`` / ``"none"`` / ``""`` / a sequence -> a tuple of ``ALIGN_OPTIONS``."""
-    if text is None:
-        return ()
-    items = text.split(",") if isinstance(text, str) else list(text)
-    items = [s.strip() for s in items if s.strip() and s.strip() != "none"]
-    bad = [s for s in items if s not in ALIGN_OPTIONS]
-    if bad:
-        raise InputError(f"unknown alignment {', '.join(bad)}; use body, lag, body,lag or "
-                         "none", field="align")
-    return tuple(dict.fromkeys(items))
-
-
 def _aligned(rec: Recording, name: str, align, alignment: list):
     """``rec`` with its truth aligned by ``align`` and the fit of its rows; the fit goes to
     ``alignment``."""
-    q_al, info = align_truth(rec, align)
-    fit = {"lag_s": info["lag_s"] if "lag" in align else 0.0,
-           "misalignment_deg": info["misalignment_deg"] if "body" in align else 0.0}
+    q_al, info = align_truth(rec, fit_for(align, name) if isinstance(align, dict) else align)
+    applied = info.get("applied", ())
+    fit = {"lag_s": info["lag_s"] if "lag" in applied else 0.0,
+           "misalignment_deg": info["misalignment_deg"] if "body" in applied else 0.0}
     alignment.append({"trial": name, **info})
     return dataclasses.replace(rec, q_true=q_al), fit
 

@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from gnomon import anchors as anchors_mod
+from gnomon.alignment import align_names
 from gnomon.benchmark.methods import ALIASES, default_filters, make_methods, method_names
 from gnomon.benchmark.scoring import alignment_stats, group_means, means, score_trial, speed
 from gnomon.benchmark.trials import parse_align, run_trials
@@ -124,7 +125,7 @@ def run_tyrex(data_dir, filters: Sequence[str] | None = None,
     more = {} if mag_calibration is None else {"mag_calibration": mag_calibration,
                                                "calibrations": calibrations}
     return {"metric": "broad", "benchmark": "tyrex", "data": str(data_dir), "mag": mag,
-            "align": list(align),
+            "align": align_names(align),
             "truth": {"north": "magnetic", "declination_deg": DECLINATION_DEG,
                       "score_window_s": list(SCORE_WINDOW_S),
                       "frame": "q_ENU_device (Android/iOS device axes), ENU with y to "

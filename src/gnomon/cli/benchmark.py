@@ -26,10 +26,16 @@ def add_parser(sub) -> None:
                                      "vqf-offline; tyrex vqf,vqf-offline,phone,ahrs-madgwick,"
                                      "imufusion; DIR the libraries, vqf-offline and onboard; "
                                      "'none' for none)")
-    s.add_argument("--align", help="correct the truth before scoring, fitted per trial from "
-                                   "the gyro: 'lag' (time offset), 'body' (sensor-to-marker "
-                                   "rotation), 'body,lag' or 'none' (default: tyrex body,lag; "
-                                   "broad and DIR none)")
+    s.add_argument("--align", metavar="auto|world,body,lag|none|FILE.json",
+                   help="correct the truth before scoring, fitted per trial from the gyro "
+                        "(and accelerometer, magnetometer) against it: 'lag' (time offset), "
+                        "'body' (sensor-to-marker rotation), 'world' (the reference's world "
+                        "to ENU: any up axis, heading to magnetic north), a comma-separated "
+                        "list of them, 'auto' (what each trial's motion determines), "
+                        "'none' or a FILE.json of --save-alignment (default: tyrex body,lag; "
+                        "broad and DIR none)")
+    s.add_argument("--save-alignment", metavar="FILE.json",
+                   help="write each trial's fitted alignment for reuse (--align FILE.json)")
     s.add_argument("--mag", choices=["calibrated", "raw"],
                    help="tyrex: the OS-calibrated magnetometer (default) or the raw one")
     s.add_argument("--mag-calibration", choices=["self", "recording"],
@@ -85,6 +91,14 @@ def run(args) -> int:
     else:
         res = run_benchmark(args.dataset, filters=filters, anchors=anchors,
                             align=args.align or (), progress=progress, strict=args.strict)
+    if args.save_alignment:
+        if not res.get("alignment"):
+            raise InputError("nothing aligned to save: give --align", field="--save-alignment")
+        from gnomon.alignment import save_alignment
+
+        save_alignment(args.save_alignment,
+                       {"trials": {a["trial"]: a for a in res["alignment"]}})
+        res["alignment_saved"] = str(args.save_alignment)
     if args.plot:
         if args.dataset == "broad":
             from gnomon.report.figures import plot_broad
@@ -169,10 +183,15 @@ def _print_benchmark(res, args) -> None:
               "reference's rate; applied: " + (",".join(res["align"]) or "none") + ")")
         width = max(len(a["trial"]) for a in res["alignment"])
         print(f"{'trial':<{width}}{'lag ms':>9}{'corr':>7}{'misalign deg':>14}"
-              f"{'rate rms deg/s':>17}")
+              f"{'rate rms deg/s':>17}{'world up':>22}  applied")
         for a in res["alignment"]:
+            up = a.get("world_up_in_world")
+            up = "(" + ",".join(f"{v:+.2f}" for v in up) + ")" if up else "-"
             print(f"{a['trial']:<{width}}{1000 * a['lag_s']:>9.1f}{a['lag_correlation']:>7.3f}"
                   f"{a['misalignment_deg']:>14.2f}"
-                  f"{a['rate_rms_deg_s_before']:>9.1f} ->{a['rate_rms_deg_s']:>5.1f}")
+                  f"{a['rate_rms_deg_s_before']:>9.1f} ->{a['rate_rms_deg_s']:>5.1f}"
+                  f"{up:>22}  {','.join(a.get('applied', [])) or 'none'}")
+            for k, why in a.get("refused", {}).items():
+                print(f"{'':<{width}}  not aligned: {k}: {why}")
     for s in res.get("skipped", []):
         print(f"skipped: {s['trial']}: {s['reason']}")

@@ -44,6 +44,15 @@ def add_parser(sub) -> None:
     s.add_argument("--compare", choices=["onboard"],
                    help="onboard: the RMS difference from the device's own attitude estimate "
                         "(PX4, ArduPilot, phone OS, Xsens), heading references matched")
+    s.add_argument("--align", metavar="auto|world,body,lag|none|FILE.json", default=None,
+                   help="turn the truth onto the sensor before scoring, fitted from the "
+                        "gyro, accelerometer and magnetometer against it: lag (clock "
+                        "offset), body (sensor-to-marker rotation), world (the reference "
+                        "world to ENU: any up axis, heading to magnetic north); auto: what "
+                        "the motion determines; FILE.json: a saved fit (--save-alignment); "
+                        "default none")
+    s.add_argument("--save-alignment", metavar="FILE.json",
+                   help="write the fitted alignment for reuse (--align FILE.json)")
     s.add_argument("--mag-calibration", metavar="CAL.json|self",
                    help="correct the magnetometer first: a calibration from `gnomon "
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
@@ -68,6 +77,7 @@ def run(args) -> int:
         raw_phone_mag(args, "--mag-calibration corrects")
     rec = read_input(args)
     notes = reader_notes(rec)  # what the reader noted: dropped, truncated, assumed
+    rec, alignment = _align(rec, args.align, args.save_alignment)
     cal_summary = None
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
@@ -85,6 +95,8 @@ def run(args) -> int:
                                                         {})), **notes}
     if cal_summary is not None:
         summary["mag_calibration"] = cal_summary
+    if alignment is not None:
+        summary["alignment"] = alignment
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
     matched = None
@@ -127,6 +139,8 @@ def _print_summary(s: dict) -> None:
         print(f"  warning: {w['message']}")
     for line in s.get("notes", []):
         print(f"  note: {line}")
+    if "alignment" in s:
+        _print_alignment(s["alignment"])
     if "errors" in s:
         e = s["errors"]
         print(f"  RMS error over {e['samples']} scored samples: total {e['total_deg']:.3f} deg, "
@@ -145,6 +159,60 @@ def _print_summary(s: dict) -> None:
     for key in ("out", "plot"):
         if key in s:
             print(f"  wrote {s[key]}")
+
+
+def _align(rec, align: str | None, save: str | None):
+    """``rec`` with its truth aligned by ``--align`` (``gnomon.alignment.align_truth``)
+    and the fit (None when not asked); ``save``: the fit written for reuse."""
+    import dataclasses
+
+    from gnomon.alignment import align_truth, fit_for, parse_align, save_alignment
+
+    what = parse_align(align)
+    if isinstance(what, dict):  # a saved fit; of a benchmark: this recording's trial
+        from pathlib import Path
+
+        what = fit_for(what, Path(rec.source or "").stem)
+    if not what:
+        if save:
+            raise InputError("--save-alignment needs --align", field="--save-alignment")
+        return rec, None
+    if rec.q_true is None:
+        raise InputError("the recording holds no truth (reference attitude) to align",
+                         field="--align", file=rec.source or None)
+    q, info = align_truth(rec, what)
+    if save:
+        save_alignment(save, info)
+        info = {**info, "saved": str(save)}
+    return dataclasses.replace(rec, q_true=q), info
+
+
+def _print_alignment(a: dict) -> None:
+    """The alignment of the truth as text lines."""
+    if a.get("from_file"):
+        print(f"  truth aligned by a saved fit: {', '.join(a['applied']) or 'nothing'}")
+        return
+    parts = []
+    if "lag" in a["applied"]:
+        parts.append(f"lag {1000 * a['lag_s']:+.1f} ms (rate correlation "
+                     f"{a['lag_correlation']:.3f})")
+    if "body" in a["applied"]:
+        inv = ", the reference inverted (world to marker)" if a["reference_inverted"] else ""
+        parts.append(f"sensor-to-marker rotation {a['misalignment_deg']:.2f} deg{inv}")
+    if "world" in a["applied"]:
+        up = ", ".join(f"{v:+.3f}" for v in a["world_up_in_world"])
+        north = ("heading to magnetic north" if a["world_heading_from"] == "magnetometer"
+                 else "the world's heading kept (no magnetometer)")
+        parts.append(f"world up was ({up}), {north}")
+    print(f"  truth aligned ({', '.join(a['applied']) or 'nothing'}): " + "; ".join(parts))
+    print(f"    gyro vs reference rate: {a['rate_rms_deg_s_before']:.2f} -> "
+          f"{a['rate_rms_deg_s']:.2f} deg/s RMS, correlation {a['rate_correlation']:.3f}"
+          + (f"; gravity residual {a['world_gravity_residual_deg']:.2f} deg"
+             if a.get("world_gravity_residual_deg") is not None else ""))
+    for k, why in a["refused"].items():
+        print(f"    not aligned: {k}: {why}")
+    if "saved" in a:
+        print(f"    wrote {a['saved']}")
 
 
 def _estimate_filter(name: str | None, offline: bool, rec) -> tuple[str, str | None]:
