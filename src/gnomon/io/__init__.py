@@ -54,7 +54,8 @@ from gnomon.recording import Recording
 __all__ = ["read", "write", "inspect", "detect_format", "FORMATS", "read_broad",
            "broad_trials", "broad_groups", "read_csv", "UnitWarning", "read_recording",
            "write_recording", "read_ulog", "read_dataflash", "read_rosbag", "read_tyrex",
-           "read_sensorlogger", "read_phyphox", "read_xsens", "read_mat", "reader_for"]
+           "read_sensorlogger", "read_phyphox", "read_xsens", "read_mat", "reader_for",
+           "propose_map", "read_mapped"]
 
 #: values of ``format`` accepted by :func:`read`
 FORMATS = ("auto", "broad", "csv", "hdf5", "ulog", "dataflash", "rosbag", "tyrex",
@@ -121,6 +122,20 @@ def read_mat(path, **options) -> Recording:
     from gnomon.io.matlab import read_mat as f
 
     return f(path, **options)
+
+
+def propose_map(path) -> dict:
+    """A map for a table of unknown layout (:func:`gnomon.io.mapping.propose_map`)."""
+    from gnomon.io.mapping import propose_map as f
+
+    return f(path)
+
+
+def read_mapped(path, map) -> Recording:
+    """A table read with a map (:func:`gnomon.io.mapping.read_mapped`)."""
+    from gnomon.io.mapping import read_mapped as f
+
+    return f(path, map)
 
 
 def reader_for(fmt: str):
@@ -248,7 +263,7 @@ def detect_format(path: str | os.PathLike) -> str:
                      file=str(path))
 
 
-def read(path: str | os.PathLike, format: str = "auto", **options) -> Recording:
+def read(path: str | os.PathLike, format: str = "auto", map=None, **options) -> Recording:
     """Read a recording from ``path`` (a file, or a folder for ROS 2 bags and phone exports).
 
     Parameters
@@ -258,7 +273,16 @@ def read(path: str | os.PathLike, format: str = "auto", **options) -> Recording:
     **options : passed to the format's reader (e.g. ``topic``, ``instance`` for logs;
         ``columns``, ``gyro_unit``, ... for CSV); an option that reader does not take
         raises :class:`InputError` naming it.
+    map : a map (a YAML path or a dict, :mod:`gnomon.io.mapping`): read a table of any
+        layout (CSV/TSV, .mat, .npz, Parquet) with it; no format or options then.
     """
+    if map is not None:
+        from gnomon.io.mapping import read_mapped
+
+        if format != "auto" or options:
+            raise InputError(f"a map names the layout; option(s) {sorted(options) or [format]} "
+                             "do not apply", file=str(path), field="map")
+        return read_mapped(path, map)
     if format not in FORMATS:
         raise InputError(f"unknown format {format!r}; use one of {', '.join(FORMATS)}",
                          field="format")
