@@ -65,7 +65,7 @@ def run_inspect(args) -> int:
         try:
             info = inspect(args.input, format=args.format, **log_options(args))
         except InputError as err:
-            if not _mappable(args):
+            if not (_layout_unknown(err) and _mappable(args)):
                 raise
             return _propose(args, err)
         info["proposed_map"] = None
@@ -74,6 +74,17 @@ def run_inspect(args) -> int:
         return 0
     _print_info(info)
     return 0
+
+
+#: the readers' messages that mean "not a layout I know" (not a damaged file)
+_LAYOUT_MESSAGES = ("missing column", "no gyro variable", "no accelerometer variable",
+                    "no time (", "cannot tell the format")
+
+
+def _layout_unknown(err: InputError) -> bool:
+    """Whether a reader refused the file for its layout (names it does not know), not for
+    bad values (those keep their error, naming the row)."""
+    return err.message.startswith(_LAYOUT_MESSAGES)
 
 
 def _mappable(args) -> bool:
@@ -132,9 +143,11 @@ def _propose(args, why: InputError | None) -> int:
     if read_error is not None:
         print(f"warning: reading with the proposed map fails: {read_error}", file=sys.stderr)
     if lack:
+        from gnomon.io.table import load_table
+
+        names = load_table(args.input).names()
         raise InputError(f"no {', '.join(lack)} found (a map needs time, gyro and "
-                         f"accelerometer); the file has: "
-                         f"{'; '.join(m['evidence'].get('unused', [])) or 'nothing more'}",
+                         f"accelerometer); the file has: {', '.join(names) or 'no numbers'}",
                          file=str(args.input), field=lack[0])
     return 0
 

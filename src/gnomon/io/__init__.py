@@ -28,6 +28,10 @@ format            recognised by                                    reader
 ``csv``           any other text (``.csv``, ``.txt``)              :func:`read_csv`
 ================  ===============================================  ====================
 
+A table of any other layout (CSV/TSV, ``.mat``, ``.npz``, Parquet) is read with a map:
+``read(path, map="map.yaml")`` (:mod:`gnomon.io.mapping`; ``propose_map(path)`` proposes
+one from the names and the data).
+
 ``**options`` go to that reader (``topic``, ``instance``, ``mag_topic``, ``columns``,
 ``gyro_unit``, ...); an option the reader does not take is an :class:`InputError`
 naming it. ``inspect(path)`` says what is inside (sensors, rates, gaps, units, the

@@ -211,7 +211,7 @@ def _time(table: Table) -> tuple[dict | None, list[str], np.ndarray | None]:
     for name, v in table.columns.items():
         words, unit = _tokens(name)
         ok = v[np.isfinite(v)]
-        increasing = ok.size > 2 and np.all(np.diff(ok) > 0)
+        increasing = ok.size >= 2 and np.all(np.diff(ok) > 0)
         if _is("time", words) and increasing:
             named.append((name, unit))
         elif increasing and not any(w in ("frame", "index", "sample", "counter", "packet",
@@ -398,7 +398,7 @@ def _truth_frame(m: dict, raw: dict, fit: dict | None) -> tuple[str, str]:
     if fit is not None:
         why += (f"; the reference's rate matches the gyro after a rotation of "
                 f"{fit['angle_deg']:.1f} deg (marker to sensor) and a lag of "
-                f"{1000 * fit['lag_s']:.0f} ms")
+                f"{1000 * fit['lag_s']:.0f} ms (to the fit's 50 ms windows)")
     if tilt_med > 5.0:
         return "unknown", f"frame unknown (not ENU, or the marker is not on the sensor's " \
                           f"axes): {why}; --align fits it"
