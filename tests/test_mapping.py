@@ -328,3 +328,29 @@ def test_cli_inspect_proposes_for_an_unknown_layout_and_names_what_is_missing(tm
     err = capsys.readouterr().err
     assert "field 'gyro'" in err and "no gyro found" in err
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_map_on_calibrate_and_live(tmp_path, capsys):
+    """``calibrate mag --map`` fits the file's field (its magnitude: |MAG_ENU_UT|);
+    ``live replay://FILE --map`` reads the file with it; CSV lines take the map's column
+    names and units; a map with options that are not its own is refused naming them."""
+    from gnomon.io.mapping import live_options
+
+    _enu_mat(tmp_path / "a.mat", 20.0, 0.0, 1)
+    mp = write_map(tmp_path / "m.yaml", propose_map(tmp_path / "a.mat"))
+    assert main(["calibrate", "mag", tmp_path / "a.mat", "--map", mp, "--json"]) == 0
+    cal = json.loads(capsys.readouterr().out)
+    assert cal["field_uT"] == pytest.approx(np.linalg.norm(MAG_ENU_UT), rel=0.01)
+    assert main(["live", f"replay://{tmp_path / 'a.mat'}?speed=0", "--map", mp, "--filter",
+                 "mahony", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["samples"] == 2000
+    with pytest.raises(InputError, match="CSV or JSON lines") as err:
+        live_options(mp)
+    assert err.value.field == "kind"
+    csv_path = tmp_path / "mocap.csv"
+    _mocap_csv(csv_path, n=200)
+    opts = live_options(propose_map(csv_path))
+    assert opts["columns"]["t"] == "Timestamp" and opts["columns"]["gyr_y"] == "gyro_y"
+    assert (opts["time_unit"], opts["accel_unit"], opts["mag_unit"]) == ("ms", "g", "gauss")
+    assert main(["estimate", tmp_path / "a.mat", "--map", mp, "--gyro-unit", "deg/s"]) == 2
+    assert "field '--gyro-unit'" in capsys.readouterr().err
