@@ -354,3 +354,24 @@ def test_map_on_calibrate_and_live(tmp_path, capsys):
     assert (opts["time_unit"], opts["accel_unit"], opts["mag_unit"]) == ("ms", "g", "gauss")
     assert main(["estimate", tmp_path / "a.mat", "--map", mp, "--gyro-unit", "deg/s"]) == 2
     assert "field '--gyro-unit'" in capsys.readouterr().err
+
+
+def test_real_broad_trial_mapped_reads_as_its_own_reader():
+    """A real recording the map was not written for: the bundled BROAD excerpt (.mat; no
+    time, a sample rate; Nx3 arrays; opt_quat wxyz in ENU; movement) and its gnomon CSV.
+    Proposed and read with the map, it is the recording BROAD's and the CSV reader give."""
+    from gnomon.datasets import bundled
+
+    for path in (bundled() / "broad" / "01_undisturbed_slow_rotation_A_excerpt.mat",
+                 bundled() / "broad_01_excerpt.csv"):
+        m = propose_map(path)
+        assert m["truth"]["order"] == "wxyz" and m["truth"]["frame"] == "ENU"
+        assert "order wxyz from the data" in " ".join(m["evidence"]["truth"])
+        assert (m["gyro"]["unit"], m["accel"]["unit"], m["mag"]["unit"]) == (
+            "rad/s", "m/s^2", "uT")
+        mapped, own = read_mapped(path, m), read(path)
+        np.testing.assert_allclose(mapped.t - mapped.t[0], own.t - own.t[0], atol=1e-9)
+        for name in ("gyro", "accel", "mag"):
+            np.testing.assert_array_equal(getattr(mapped, name), getattr(own, name))
+        np.testing.assert_allclose(mapped.q_true, own.q_true, atol=1e-12)  # renormalised
+        np.testing.assert_array_equal(mapped.score_mask, own.score_mask)

@@ -154,19 +154,21 @@ def _propose(args, why: InputError | None) -> int:
 
 def _print_map(m: dict) -> None:
     """Each entry of a proposed map on one line, its evidence below it."""
-    for key in ("time", "gyro", "accel", "mag", "truth"):
+    for key in ("time", "gyro", "accel", "mag", "truth", "mask"):
         e = m.get(key)
+        if e is None and key == "mask":
+            continue
         if e is None:
             print(f"  {key:6s} (not found)")
         else:
             where = (", ".join(e["columns"]) if "columns" in e else e.get("array")
-                     or e.get("column") or f"{e.get('rate_hz')} Hz")
+                     or e.get("column") or f"rate {e.get('rate_hz'):g} Hz")
             what = [e[k] for k in ("unit", "order", "frame") if e.get(k)]
             if e.get("axes") and e["axes"] != ["x", "y", "z"]:
                 what.append("axes [" + ", ".join(e["axes"]) + "]")
             if e.get("valid"):
                 what.append(f"valid: {e['valid']}")
-            print(f"  {key:6s} {where}  ({'; '.join(what)})")
+            print(f"  {key:6s} {where}" + (f"  ({'; '.join(what)})" if what else ""))
         for line in m.get("evidence", {}).get(key, []):
             print(f"         - {line}")
     for line in m.get("evidence", {}).get("unused", []):

@@ -21,7 +21,8 @@ of the same layout.
   gyro by one rotation (:func:`gnomon.io.units.quat_order`); the names decide only when
   the data cannot (rotation about one axis, no gyro);
 * **a validity mask** for the reference (``isTracked``, ``valid``, ``tracking``: 0/1
-  values), its 0 rows read as missing truth;
+  values), its 0 rows read as missing truth; and a **scoring mask** (``mask``,
+  ``movement``: 0/1, BROAD's), the rows that count for the scores (``Recording.mask``);
 * **the reference's frame**: ``ENU`` when gravity (and, with a magnetometer, north)
   seen through the reference point where gnomon's ENU has them (within 5° and 10°,
   median), else ``unknown`` — a motion-capture world (y up, any heading), a marker not
@@ -38,6 +39,7 @@ The map (a dict, YAML on disk; ``write_map``/``load_map``, validated naming the 
     mag: {array: SENSmag, unit: gauss, axes: [x, -y, -z]}      # optional
     truth: {columns: [cam_qx, cam_qy, cam_qz, cam_qw], order: xyzw, frame: unknown,
             valid: isTracked}                                  # optional
+    mask: {column: movement}                                   # optional: rows scored
     evidence: {time: [...], gyro: [...], ...}                  # why; ignored on reading
 
 Units: time ``s ms us ns datenum``; gyro ``rad/s deg/s``; accelerometer ``m/s^2 g mg``;
@@ -89,8 +91,9 @@ _WORDS = {
                "rotation", "pose"}, ("quat", "orient")),
     "time": ({"t", "time", "timestamp", "timestamps", "stamp", "ts", "sec", "secs",
               "seconds", "epoch", "datenum", "utc"}, ("time", "stamp")),
-    "valid": ({"valid", "tracked", "istracked", "tracking", "visible", "ok", "mask",
-               "occluded"}, ("track", "valid")),
+    "valid": ({"valid", "tracked", "istracked", "tracking", "visible", "ok", "occluded"},
+              ("track", "valid")),
+    "mask": ({"mask", "movement", "moving", "score", "scored", "scoring"}, ()),
 }
 _NOT_SENSOR = ("bias", "cov", "std", "var", "err", "offset", "noise", "sigma", "est", "filt",
                "ref", "true")
@@ -287,6 +290,11 @@ def propose_map(path: str | os.PathLike) -> dict:
         if valid is not None:
             m["truth"]["valid"] = ev_valid[0]
             ev["truth"].append(ev_valid[1])
+        flag, ev_mask = _flag(table, "mask", exclude=m["truth"].get("valid"))
+        if flag is not None:
+            m["mask"] = {"column": ev_mask[0]}
+            ev["mask"] = [f"{ev_mask[0]}: a 0/1 column named like a scoring mask, "
+                          f"{int(flag.sum())} of {flag.size} rows scored"]
     if "gyro" in found:
         hint = found["gyro"].get("unit")
         unit, why = U.gyro_unit(raw["gyro"], hint,
@@ -362,6 +370,17 @@ def _by_data(cands: list[dict], found: dict, ev: dict) -> None:
                    f"{med:.4g}, relative spread {spread:.2f})"]
 
 
+def _flag(table: Table, kind: str, exclude: str | None = None):
+    """The first 0/1 column named like ``kind`` (``valid``, ``mask``): (rows 1, (its name,))
+    or (None, None)."""
+    for name, v in table.columns.items():
+        ok = v[np.isfinite(v)]
+        if name != exclude and ok.size and _is(kind, _tokens(name)[0]) and np.all(
+                np.isin(ok, (0.0, 1.0))):
+            return np.isfinite(v) & (v == 1.0), (name,)
+    return None, None
+
+
 def _valid(table: Table) -> tuple[np.ndarray | None, tuple[str, str] | None]:
     """A 0/1 column named like a validity flag: (rows valid, (its name, the evidence))."""
     for name, v in table.columns.items():
@@ -426,7 +445,8 @@ _HEADER = """\
 # Units: time s|ms|us|ns|datenum, gyro rad/s|deg/s, accel m/s^2|g|mg,
 #        mag uT|nT|mT|T|gauss|mG. axes: a signed permutation, e.g. [x, -y, -z].
 # truth.order: the order the file stores the components in (wxyz or xyzw);
-# truth.frame: ENU (gnomon's) or unknown (--align fits it). evidence: why (not read).
+# truth.frame: ENU (gnomon's) or unknown (--align fits it); truth.valid: a 0/1 column
+# (0: no truth); mask.column: a 0/1 column of the rows scored. evidence: why (not read).
 """
 
 
@@ -446,7 +466,8 @@ def write_map(path: str | os.PathLike, m: dict) -> Path:
     return p
 
 
-_KEYS = {"version", "kind", "delimiter", "time", "gyro", "accel", "mag", "truth", "evidence"}
+_KEYS = {"version", "kind", "delimiter", "time", "gyro", "accel", "mag", "truth", "mask",
+         "evidence"}
 _ENTRY_KEYS = {"time": {"column", "unit", "rate_hz"},
                "sensor": {"columns", "array", "unit", "axes"},
                "truth": {"columns", "array", "order", "frame", "valid"}}
@@ -495,6 +516,11 @@ def load_map(source) -> dict:
             out[key] = _check_sensor(key, m[key], bad)
     if m.get("truth") is not None:
         out["truth"] = _check_truth(m["truth"], bad)
+    if m.get("mask") is not None:
+        v = _mapping("mask", m["mask"], {"column"}, bad)
+        if not isinstance(v.get("column"), str):
+            raise bad("mask.column", f"expected a column name, got {v.get('column')!r}")
+        out["mask"] = {"column": v["column"]}
     if m.get("evidence"):
         out["evidence"] = m["evidence"]
     return out
@@ -669,11 +695,20 @@ def read_mapped(path: str | os.PathLike, m, *, source: str | None = None,
             assumed.append("The truth's world frame, its body (a marker) and its clock are "
                            "not known to be gnomon's ENU, the sensor's axes and the gyro's "
                            "clock (frames['truth'] = 'unknown'): scores need --align.")
+    mask = None
+    if "mask" in m:
+        col = m["mask"]["column"]
+        if col not in table.columns:
+            raise InputError(f"no column {col!r} (mask); the file has: "
+                             f"{', '.join(table.names())}", file=str(path), field="mask.column")
+        mask = table.columns[col] == 1.0
+        names["mask"] = col
+        assumed.append(f"Scored: the {int(mask.sum())} of {mask.size} rows where {col} is 1.")
     frames = {"reference": "ENU", "body": "sensor"}
     if truth_frame is not None:
         frames["truth"] = truth_frame
     return build(path, names, t=t, gyro=fields["gyro"], accel=fields["accel"],
-                 mag=fields["mag"], mag_unit="uT", q_true=q_true, frames=frames,
+                 mag=fields["mag"], mag_unit="uT", q_true=q_true, mask=mask, frames=frames,
                  source=path.stem if source is None else source,
                  meta={"format": "map", "kind": kind, "map": map_file, "assumed": assumed})
 
