@@ -375,3 +375,26 @@ def test_real_broad_trial_mapped_reads_as_its_own_reader():
             np.testing.assert_array_equal(getattr(mapped, name), getattr(own, name))
         np.testing.assert_allclose(mapped.q_true, own.q_true, atol=1e-12)  # renormalised
         np.testing.assert_array_equal(mapped.score_mask, own.score_mask)
+
+
+def test_csv_with_metadata_lines_and_a_units_row(tmp_path, capsys):
+    """An export with lines of metadata above the header and a row of units below it:
+    the header is the first line with as many cells as the data, the units join the
+    names (``gyro_x (deg/s)``) and decide the unit."""
+    src = tmp_path / "mocap.csv"
+    _mocap_csv(src, n=600)
+    frame = pd.read_csv(src)
+    frame[["gyro_x", "gyro_y", "gyro_z"]] *= 180.0 / math.pi
+    path = tmp_path / "export.csv"
+    units = ["ms", "deg/s", "deg/s", "deg/s", "g", "g", "g", "G", "G", "G", "", "", "", "", ""]
+    with open(path, "w") as fh:
+        fh.write("Trial,42\nFrame Rate,100\n\n" + ",".join(frame.columns) + "\n"
+                 + ",".join(units) + "\n")
+        frame.to_csv(fh, header=False, index=False)
+    assert main(["inspect", path, "--write-map", tmp_path / "m.yaml"]) == 0
+    m = load_map(tmp_path / "m.yaml")
+    assert m["gyro"] == {"columns": ["gyro_x (deg/s)", "gyro_y (deg/s)", "gyro_z (deg/s)"],
+                         "unit": "deg/s", "axes": ["x", "y", "z"]}
+    assert m["time"] == {"column": "Timestamp (ms)", "unit": "ms"}
+    rec = read(path, map=tmp_path / "m.yaml")
+    np.testing.assert_allclose(rec.gyro, tumble(np.arange(603) / FS)[1][:600], atol=1e-9)

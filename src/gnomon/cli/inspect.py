@@ -84,7 +84,8 @@ _LAYOUT_MESSAGES = ("missing column", "no gyro variable", "no accelerometer vari
 def _layout_unknown(err: InputError) -> bool:
     """Whether a reader refused the file for its layout (names it does not know), not for
     bad values (those keep their error, naming the row)."""
-    return err.message.startswith(_LAYOUT_MESSAGES)
+    header_wrong = "cells, header has" in err.message and (err.row or 0) <= 2  # metadata
+    return err.message.startswith(_LAYOUT_MESSAGES) or header_wrong
 
 
 def _mappable(args) -> bool:

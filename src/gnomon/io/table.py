@@ -7,8 +7,10 @@ kind        file                                                      read by
 ==========  ========================================================  =====================
 ``csv``     text with a header line (``.csv``, ``.tsv``, ``.txt``,    pandas (C parser); the
             ...); the delimiter found from the header (``,`` ``;``    delimiter from the
-            tab ``|`` or blanks); lines starting ``#`` before the     header line
-            header are skipped
+            tab ``|`` or blanks); lines starting ``#`` and lines of   header line
+            metadata with fewer cells before the header are
+            skipped, a row of units below it joins the names
+            (``gyro_x (deg/s)``)
 ``mat``     MATLAB v5/v7 or v7.3 (:mod:`gnomon.io.matlab`'s loaders)  scipy.io / h5py
 ``npz``     numpy ``.npz``                                            numpy
 ``parquet`` Apache Parquet                                            pyarrow (via pandas)
@@ -115,17 +117,31 @@ def load_table(path: str | os.PathLike, kind: str | None = None) -> Table:
     return _from_variables(p, "mat", variables)
 
 
-def _header(p: Path) -> tuple[int, str]:
-    """(lines before the header, the header line) of a text table."""
+def _header(p: Path, scan: int = 60) -> tuple[int, str]:
+    """(lines before the header, the header line) of a text table: the first line that is
+    not blank or a ``#`` comment and has as many cells as the data lines (the last of the
+    first ``scan`` lines), so that lines of metadata above the header (``Frame Rate,100``)
+    are skipped."""
+    lines = []
     try:
         with open(p, encoding="utf-8-sig") as fh:
             for i, line in enumerate(fh):
                 if line.strip() and not line.lstrip().startswith("#"):
-                    return i, line.rstrip("\r\n")
+                    lines.append((i, line.rstrip("\r\n")))
+                if len(lines) >= scan:
+                    break
     except UnicodeDecodeError as err:
         raise InputError(f"not a UTF-8 text file ({err.reason} at byte {err.start})",
                          file=str(p)) from None
-    raise InputError("empty file: no header line", file=str(p))
+    if not lines:
+        raise InputError("empty file: no header line", file=str(p))
+    last = lines[-1][1]
+    delim = max(_DELIMITERS, key=last.count)
+    cells = last.count(delim)
+    for i, line in lines:
+        if cells == 0 or line.count(delim) == cells:
+            return i, line
+    return lines[0]
 
 
 def _csv(p: Path) -> Table:
@@ -145,9 +161,30 @@ def _csv(p: Path) -> Table:
     if frame.shape[0] == 0:
         raise InputError("no data rows after the header", file=str(p))
     frame.columns = [str(c).strip() for c in frame.columns]
+    frame = _units_row(frame)
     table = _from_frame(p, "csv", frame)
     table.delimiter = "whitespace" if delim == r"\s+" else delim
     return table
+
+
+def _units_row(frame):
+    """A first data row of text above numbers (a row of units, ``s, rad/s, ...``) becomes
+    part of the names (``gyro_x (rad/s)``) and is dropped."""
+    import pandas as pd
+
+    if frame.shape[0] < 2:
+        return frame
+    text = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
+    if not text:
+        return frame
+    first = pd.to_numeric(frame[text].iloc[0], errors="coerce")
+    rest = frame[text].iloc[1:].apply(pd.to_numeric, errors="coerce")
+    if first.notna().any() or rest.isna().all().any():
+        return frame
+    units = ["" if pd.isna(u) else str(u).strip() for u in frame.iloc[0]]
+    out = frame.iloc[1:].apply(pd.to_numeric, errors="coerce").reset_index(drop=True)
+    out.columns = [f"{c} ({u})" if u else c for c, u in zip(frame.columns, units, strict=True)]
+    return out
 
 
 def _from_frame(p: Path, kind: str, frame) -> Table:
