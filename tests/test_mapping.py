@@ -398,3 +398,16 @@ def test_csv_with_metadata_lines_and_a_units_row(tmp_path, capsys):
     assert m["time"] == {"column": "Timestamp (ms)", "unit": "ms"}
     rec = read(path, map=tmp_path / "m.yaml")
     np.testing.assert_allclose(rec.gyro, tumble(np.arange(603) / FS)[1][:600], atol=1e-9)
+
+
+def test_missing_samples_do_not_stop_the_proposal(tmp_path):
+    """Empty cells (NaN) in the sensors and the reference: the proposal is the same."""
+    path = tmp_path / "mocap.csv"
+    _mocap_csv(path, n=800)
+    frame = pd.read_csv(path)
+    frame.loc[[3, 100, 101], ["gyro_y", "acc_x", "mag_z"]] = np.nan
+    frame.loc[[5, 400], ["cam_qw"]] = np.nan
+    frame.to_csv(path, index=False)
+    m = propose_map(path)
+    assert (m["gyro"]["unit"], m["accel"]["unit"], m["mag"]["unit"]) == ("rad/s", "g", "gauss")
+    assert m["truth"]["order"] == "xyzw" and m["truth"]["frame"] == "unknown"

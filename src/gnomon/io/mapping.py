@@ -396,16 +396,17 @@ def _valid(table: Table) -> tuple[np.ndarray | None, tuple[str, str] | None]:
 
 
 def _truth_frame(m: dict, raw: dict, fit: dict | None) -> tuple[str, str]:
-    """``ENU`` when the reference turns the accelerometer's gravity to +z (5°) and the
-    magnetometer's horizontal part to +y (10°), medians over the valid rows; else
-    ``unknown``."""
+    """``ENU`` when the reference turns the accelerometer's gravity to +z (5°, the median
+    tilt) and the magnetometer's horizontal part to +y (10°, the circular mean heading),
+    over the rows where both are finite; else ``unknown``."""
     if "accel" not in raw or m["accel"].get("unit") is None:
         return "unknown", "frame unknown: no accelerometer to check it"
     from gnomon.rotation import quat_rotate
 
     q = np.asarray(raw["truth"], float)[:, list(_ORDERS[m["truth"]["order"]])]
     n = np.linalg.norm(q, axis=1)
-    ok = np.isfinite(n) & (np.abs(n - 1.0) < 0.1)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(n) & (np.abs(n - 1.0) < 0.1) & np.isfinite(raw["accel"]).all(axis=1)
     if ok.sum() < 3:
         return "unknown", "frame unknown: too few valid reference rows"
     q = q[ok] / n[ok, None]
@@ -423,11 +424,14 @@ def _truth_frame(m: dict, raw: dict, fit: dict | None) -> tuple[str, str]:
                           f"axes): {why}; --align fits it"
     if "mag" not in raw or m["mag"].get("unit") is None:
         return "unknown", f"frame unknown: {why}, but no magnetometer to check the heading"
-    mag = _remap(_in_unit(raw["mag"][ok], "mag", m["mag"]["unit"]), m["mag"]["axes"])
-    h = quat_rotate(q, mag)
-    heading = np.degrees(np.arctan2(h[:, 0], h[:, 1]))  # of the field, from +y towards +x
-    head_med = float(np.degrees(np.angle(np.nanmedian(np.exp(1j * np.radians(heading))))))
-    why += f"; the field's horizontal part {head_med:+.1f} deg from +y (median)"
+    fine = np.isfinite(raw["mag"][ok]).all(axis=1)
+    if fine.sum() < 3:
+        return "unknown", f"frame unknown: {why}, but too few magnetometer samples"
+    mag = _remap(_in_unit(raw["mag"][ok][fine], "mag", m["mag"]["unit"]), m["mag"]["axes"])
+    h = quat_rotate(q[fine], mag)
+    heading = np.arctan2(h[:, 0], h[:, 1])  # of the field, from +y towards +x (rad)
+    head_med = math.degrees(float(np.angle(np.mean(np.exp(1j * heading)))))
+    why += f"; the field's horizontal part {head_med:+.1f} deg from +y (circular mean)"
     if abs(head_med) > 10.0:
         return "unknown", f"frame unknown (heading not ENU's): {why}; --align fits it"
     return "ENU", f"frame ENU: {why}"
