@@ -117,15 +117,22 @@ def test_one_axis_motion_leaves_the_order_to_the_names(tmp_path):
     assert m["truth"]["order"] == "xyzw"
 
 
-def test_matlab_robot_reference_arrays_named(tmp_path):
+@pytest.mark.parametrize("version", ["5", "7.3"])
+def test_matlab_robot_reference_arrays_named(tmp_path, version):
     """The issue's .mat: SENSgyro, SENSacc, SENSmag 3xN, MATLABtime datenum days,
-    ABBquaternion 4xN scalar first (truth in ENU, the sensor on the robot's flange)."""
+    ABBquaternion 4xN scalar first (truth in ENU, the sensor on the robot's flange); v5
+    (scipy) and v7.3 (HDF5, stored transposed as MATLAB does)."""
+    from logfiles import write_mat73
+
     t = np.arange(1500) / FS
     q, w, acc, mag = tumble(t)
     path = tmp_path / "robot.mat"
-    scipy.io.savemat(path, {"SENSgyro": w.T, "SENSacc": acc.T, "SENSmag": mag.T * 1e3,
-                            "MATLABtime": 738000.25 + t / 86400.0, "ABBquaternion": q.T,
-                            "note": "abc"})
+    variables = {"SENSgyro": w.T, "SENSacc": acc.T, "SENSmag": mag.T * 1e3,
+                 "MATLABtime": (738000.25 + t / 86400.0)[None, :], "ABBquaternion": q.T}
+    if version == "5":
+        scipy.io.savemat(path, {**variables, "note": "abc"})
+    else:
+        write_mat73(path, variables)
     m = propose_map(path)
     assert m["kind"] == "mat"
     assert m["time"] == {"column": "MATLABtime", "unit": "datenum"}
