@@ -23,9 +23,9 @@ of the same layout.
 * **a validity mask** for the reference (``isTracked``, ``valid``, ``tracking``: 0/1
   values), its 0 rows read as missing truth; and a **scoring mask** (``mask``,
   ``movement``: 0/1, BROAD's), the rows that count for the scores (``Recording.mask``);
-* **the reference's frame**: ``ENU`` when gravity (and, with a magnetometer, north)
-  seen through the reference point where gnomon's ENU has them (within 5° and 10°,
-  median), else ``unknown`` — a motion-capture world (y up, any heading), a marker not
+* **the reference's frame**: ``ENU`` when gravity and, with a magnetometer, north seen
+  through the reference point where gnomon's ENU has them (within 5°, the median tilt,
+  and 10°, the circular mean heading), else ``unknown`` — a motion-capture world (y up, any heading), a marker not
   on the sensor's axes, a time lag: ``--align`` fits those, not the map.
 
 The map (a dict, YAML on disk; ``write_map``/``load_map``, validated naming the key)::
