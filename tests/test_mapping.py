@@ -149,7 +149,7 @@ def test_matlab_robot_reference_arrays_named(tmp_path, version):
     assert error_angle(q, rec.q_true).max() < 1e-9
 
 
-def test_npz_in_degrees_found_from_magnitudes(tmp_path):
+def test_npz_in_degrees_found_from_magnitudes(tmp_path, capsys):
     """N x 3 arrays in deg/s and m/s², no reference: the gyro unit from its magnitudes."""
     t = np.arange(1000) / 200.0
     _, w, acc, _ = tumble(t)
@@ -163,6 +163,8 @@ def test_npz_in_degrees_found_from_magnitudes(tmp_path):
     rec = read_mapped(path, m)
     assert rec.sample_rate_hz == pytest.approx(200.0)
     np.testing.assert_allclose(rec.gyro, w, atol=1e-12)
+    assert main(["inspect", path, "--json"]) == 0  # no reader knows .npz: proposed
+    assert json.loads(capsys.readouterr().out)["proposed_map"]["gyro"]["unit"] == "deg/s"
 
 
 def test_parquet_and_tsv_variants(tmp_path):

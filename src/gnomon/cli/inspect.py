@@ -78,7 +78,7 @@ def run_inspect(args) -> int:
 
 #: the readers' messages that mean "not a layout I know" (not a damaged file)
 _LAYOUT_MESSAGES = ("missing column", "no gyro variable", "no accelerometer variable",
-                    "no time (", "cannot tell the format")
+                    "no time (", "cannot tell the format", "a zip file, but not")
 
 
 def _layout_unknown(err: InputError) -> bool:

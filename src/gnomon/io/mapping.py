@@ -25,8 +25,9 @@ of the same layout.
   ``movement``: 0/1, BROAD's), the rows that count for the scores (``Recording.mask``);
 * **the reference's frame**: ``ENU`` when gravity and, with a magnetometer, north seen
   through the reference point where gnomon's ENU has them (within 5°, the median tilt,
-  and 10°, the circular mean heading), else ``unknown`` — a motion-capture world (y up, any heading), a marker not
-  on the sensor's axes, a time lag: ``--align`` fits those, not the map.
+  and 10°, the circular mean heading), else ``unknown`` — a motion-capture world (y up,
+  any heading), a marker not on the sensor's axes, a time lag: ``--align`` fits those,
+  not the map.
 
 The map (a dict, YAML on disk; ``write_map``/``load_map``, validated naming the key)::
 
