@@ -33,10 +33,11 @@ three constants, each fitted in its own step:
 
 ``align_truth(rec, align)`` applies them in that order; ``align="auto"`` fits all three
 and applies those the motion determines, reporting why it left the others out; it keeps
-the world of a truth its reader gives in ENU (BROAD, tyrex, a gnomon recording) when the
-accelerometer's up agrees with its +z within ``MAX_ENU_TILT_DEG``: there the fitted up
-(tilted 0.1-0.4 deg by the accelerometer's own errors on BROAD) and magnetic north
-(up to 2 deg from BROAD's) would only add error. A named
+the world of a truth its reader gives in ENU (BROAD, tyrex, a gnomon recording; the
+frame ``frames["truth"]``, else ``frames["reference"]``) when the accelerometer's up
+agrees with its +z within ``MAX_ENU_TILT_DEG``: there the fitted up (tilted 0.1-0.4 deg
+by the accelerometer's own errors on BROAD) and magnetic north (up to 2 deg from
+BROAD's) would only add error. A named
 component the motion does not determine is an :class:`~gnomon.errors.InputError` that
 says why. :func:`save_alignment` / :func:`load_alignment` keep a fit for reuse
 (``--save-alignment``, ``--align FILE.json``).
@@ -486,8 +487,8 @@ def align_truth(rec: Recording, align=ALIGN_OPTIONS, max_lag_s: float = 0.25,
             except InputError as err:
                 refused["world"] = err.message
         tilt = None if world is None else _angle_from_z_deg(world["up_in_world"])
-        if world is not None and auto and rec.frames.get("reference") == "ENU" \
-                and tilt < MAX_ENU_TILT_DEG:
+        truth_frame = rec.frames.get("truth", rec.frames.get("reference"))
+        if world is not None and auto and truth_frame == "ENU" and tilt < MAX_ENU_TILT_DEG:
             refused["world"] = (f"the truth is in ENU already (the reader's frame; its up "
                                 f"{tilt:.2f} deg from the accelerometer's): kept")
             world = None

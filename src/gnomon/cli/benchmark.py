@@ -7,7 +7,13 @@ import math
 import sys
 from pathlib import Path
 
-from gnomon.cli.common import add_quiet_option, add_strict_option, print_json, progress_wanted
+from gnomon.cli.common import (
+    add_map_option,
+    add_quiet_option,
+    add_strict_option,
+    print_json,
+    progress_wanted,
+)
 from gnomon.errors import InputError
 
 
@@ -42,6 +48,7 @@ def add_parser(sub) -> None:
                    help="tyrex, raw magnetometer: correct it by gnomon's calibration (gnomon "
                         "calibrate mag) fitted to each trial's own samples (self) or to the "
                         "data set's calibration recording of that phone and day (recording)")
+    add_map_option(s)
     s.add_argument("--plot", help="write a bar chart, e.g. broad.png (tyrex, DIR: per group)")
     s.add_argument("--json", action="store_true", help="print the JSON result")
     add_strict_option(s)
@@ -73,6 +80,9 @@ def run(args) -> int:
                          "itself: gnomon benchmark DIR", field="--data")
     if args.strict and named:
         raise InputError("--strict applies to benchmark DIR", field="--strict")
+    if args.map is not None and named:
+        raise InputError("--map reads a folder of tables of one layout: gnomon benchmark DIR "
+                         "--map MAP.yaml", field="--map")
     if args.mag is not None and args.dataset != "tyrex":
         raise InputError("--mag applies to the tyrex benchmark", field="--mag")
     if args.mag_calibration is not None and args.dataset != "tyrex":
@@ -90,7 +100,8 @@ def run(args) -> int:
                         progress=progress, mag_calibration=args.mag_calibration)
     else:
         res = run_benchmark(args.dataset, filters=filters, anchors=anchors,
-                            align=args.align or (), progress=progress, strict=args.strict)
+                            align=args.align or (), progress=progress, strict=args.strict,
+                            map=args.map)
     if args.save_alignment:
         if not res.get("alignment"):
             raise InputError("nothing aligned to save: give --align", field="--save-alignment")

@@ -83,6 +83,8 @@ def raw_phone_mag(args, why: str) -> None:
 def read_input(args):
     from gnomon.io import read
 
+    if getattr(args, "map", None):  # a table of another layout, read with a map
+        return read(args.input, map=args.map, **_no_csv_options(args))
     csv_opts = {}
     if args.columns:
         csv_opts["columns"] = parse_pairs(args.columns.split(","), option="--columns")
@@ -92,6 +94,27 @@ def read_input(args):
     if getattr(args, "phone_mag", None):  # phone exports: which magnetometer file
         csv_opts["mag"] = args.phone_mag
     return read(args.input, format=args.format, **csv_opts, **log_options(args))
+
+
+def _no_csv_options(args) -> dict:
+    """With ``--map``: the CSV options are the map's (an error naming one given too);
+    ``--strict`` still applies."""
+    for opt in ("columns", "gyro_unit", "accel_unit", "mag_unit", "time_unit", "topic",
+                "mag_topic", "instance"):
+        if getattr(args, opt, None) is not None:
+            raise InputError("the map names the columns and units: give them there",
+                             field="--" + opt.replace("_", "-"))
+    if getattr(args, "format", "auto") != "auto":
+        raise InputError("the map names the kind of file", field="--format")
+    return {"strict": True} if getattr(args, "strict", False) else {}
+
+
+def add_map_option(s) -> None:
+    """``--map MAP.yaml``: read a table of another layout (CSV/TSV, .mat, .npz, Parquet) with
+    a map (``gnomon inspect FILE --write-map MAP.yaml``; :mod:`gnomon.io.mapping`)."""
+    s.add_argument("--map", metavar="MAP.yaml",
+                   help="read the input with a map (columns or arrays, units, axes, truth "
+                        "order), as `gnomon inspect FILE --write-map MAP.yaml` proposes")
 
 
 def log_options(args) -> dict:
@@ -138,6 +161,7 @@ def add_csv_options(s) -> None:
     g.add_argument("--accel-unit", help="m/s^2 (default) or g")
     g.add_argument("--mag-unit", help="uT (default), nT, mT, T or gauss")
     g.add_argument("--time-unit", help="s (default), ms, us or ns")
+    add_map_option(g)
 
 
 def add_quiet_option(s) -> None:

@@ -110,6 +110,24 @@ def _filter(args, source):
     return filt
 
 
+def _mapped(args, given) -> tuple:
+    """``--map``: a replay reads its file with the map (``gnomon.io.read(path, map=)``); CSV
+    lines (udp://, serial://) take the map's column names and units
+    (:func:`gnomon.io.mapping.live_options`); MAVLink has its own messages."""
+    if given:
+        raise InputError("the map names the columns and units: give them there",
+                         field="--map")
+    if args.source.startswith("replay://"):
+        return None, {}, {"map": args.map}
+    if args.source.startswith(("udp://", "serial://")):
+        from gnomon.io.mapping import live_options
+
+        opts = live_options(args.map)
+        return opts.pop("columns"), opts, None
+    raise InputError("a MAVLink stream has its own messages: --map applies to replay://, "
+                     "udp:// and serial:// sources", field="--map")
+
+
 def run(args) -> int:
     """``gnomon.live.run_live(open_source(SOURCE), make_filter(NAME), sinks)``; exit status
     0 at the end of the stream, --duration, --max-samples or a signal."""
@@ -121,7 +139,10 @@ def run(args) -> int:
         columns = {k: int(v) if v.isdigit() else v for k, v in columns.items()}
     units = {opt: getattr(args, opt) for opt in ("gyro_unit", "accel_unit", "mag_unit",
                                                   "time_unit") if getattr(args, opt, None)}
-    source = open_source(args.source, LineParser(columns, **units))
+    read_options = None
+    if args.map:
+        columns, units, read_options = _mapped(args, columns or units)
+    source = open_source(args.source, LineParser(columns, **units), read_options=read_options)
     stop = threading.Event()
     sinks = []
     try:

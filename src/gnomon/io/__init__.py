@@ -28,6 +28,10 @@ format            recognised by                                    reader
 ``csv``           any other text (``.csv``, ``.txt``)              :func:`read_csv`
 ================  ===============================================  ====================
 
+A table of any other layout (CSV/TSV, ``.mat``, ``.npz``, Parquet) is read with a map:
+``read(path, map="map.yaml")`` (:mod:`gnomon.io.mapping`; ``propose_map(path)`` proposes
+one from the names and the data).
+
 ``**options`` go to that reader (``topic``, ``instance``, ``mag_topic``, ``columns``,
 ``gyro_unit``, ...); an option the reader does not take is an :class:`InputError`
 naming it. ``inspect(path)`` says what is inside (sensors, rates, gaps, units, the
@@ -56,7 +60,8 @@ from gnomon.recording import Recording
 __all__ = ["read", "write", "inspect", "detect_format", "FORMATS", "read_broad",
            "broad_trials", "broad_groups", "read_csv", "UnitWarning", "read_recording",
            "write_recording", "read_ulog", "read_dataflash", "read_rosbag", "read_tyrex",
-           "read_sensorlogger", "read_phyphox", "read_xsens", "read_mat", "reader_for"]
+           "read_sensorlogger", "read_phyphox", "read_xsens", "read_mat", "reader_for",
+           "propose_map", "read_mapped"]
 
 #: values of ``format`` accepted by :func:`read`
 FORMATS = ("auto", "broad", "csv", "hdf5", "ulog", "dataflash", "rosbag", "tyrex",
@@ -123,6 +128,20 @@ def read_mat(path, **options) -> Recording:
     from gnomon.io.matlab import read_mat as f
 
     return f(path, **options)
+
+
+def propose_map(path) -> dict:
+    """A map for a table of unknown layout (:func:`gnomon.io.mapping.propose_map`)."""
+    from gnomon.io.mapping import propose_map as f
+
+    return f(path)
+
+
+def read_mapped(path, map) -> Recording:
+    """A table read with a map (:func:`gnomon.io.mapping.read_mapped`)."""
+    from gnomon.io.mapping import read_mapped as f
+
+    return f(path, map)
 
 
 def reader_for(fmt: str):
@@ -250,7 +269,7 @@ def detect_format(path: str | os.PathLike) -> str:
                      file=str(path))
 
 
-def read(path: str | os.PathLike, format: str = "auto", *, strict: bool = False,
+def read(path: str | os.PathLike, format: str = "auto", map=None, *, strict: bool = False,
          **options) -> Recording:
     """Read a recording from ``path`` (a file, or a folder for ROS 2 bags and phone exports).
 
@@ -264,7 +283,19 @@ def read(path: str | os.PathLike, format: str = "auto", *, strict: bool = False,
     **options : passed to the format's reader (e.g. ``topic``, ``instance`` for logs;
         ``columns``, ``gyro_unit``, ... for CSV); an option that reader does not take
         raises :class:`InputError` naming it.
+    map : a map (a YAML path or a dict, :mod:`gnomon.io.mapping`): read a table of any
+        layout (CSV/TSV, .mat, .npz, Parquet) with it; no format or options then.
     """
+    if map is not None:
+        from gnomon.io.mapping import read_mapped
+
+        if format != "auto" or options:
+            raise InputError(f"a map names the layout; option(s) {sorted(options) or [format]} "
+                             "do not apply", file=str(path), field="map")
+        from gnomon.io._common import strict_reading
+
+        with strict_reading(strict):
+            return read_mapped(path, map)
     if format not in FORMATS:
         raise InputError(f"unknown format {format!r}; use one of {', '.join(FORMATS)}",
                          field="format")
