@@ -32,7 +32,8 @@ multi-pose (six-face) calibration separates the components.
 
 **Refused when not static** (:func:`check_static`): the standard deviation of the
 1-s means of any gyro axis above ``MAX_GYRO_STD_RAD_S`` or of any accelerometer axis
-above ``MAX_ACCEL_STD_M_S2``. One-second means are used so that a noisy sensor at a
+above ``MAX_ACCEL_STD_M_S2``, or a mean rate above ``MAX_GYRO_MEAN_RAD_S`` (a steady
+turn). One-second means are used so that a noisy sensor at a
 high rate is not mistaken for motion (its white noise falls by the square root of the
 samples averaged); a turn, a tilt, a hand-held device all exceed the thresholds.
 """
@@ -56,12 +57,15 @@ from gnomon.errors import InputError
 from gnomon.recording import Recording
 
 __all__ = ["imu_noise", "check_static", "save_imu_noise", "load_imu_noise",
-           "MAX_GYRO_STD_RAD_S", "MAX_ACCEL_STD_M_S2", "STATIC_WINDOW_S", "G0_M_S2",
-           "MIN_DURATION_S", "FORMAT", "EARTH_RATE_RAD_S"]
+           "MAX_GYRO_STD_RAD_S", "MAX_GYRO_MEAN_RAD_S", "MAX_ACCEL_STD_M_S2",
+           "STATIC_WINDOW_S", "G0_M_S2", "MIN_DURATION_S", "FORMAT", "EARTH_RATE_RAD_S"]
 
 #: the 1-s means of a gyro axis of a device at rest vary less than this (std, rad/s;
 #: 2.9 deg/s)
 MAX_GYRO_STD_RAD_S = 0.05
+#: a static gyro's mean rate (its bias and the Earth's rotation) is below this (rad/s;
+#: 11.5 deg/s): a larger steady rate is a turn
+MAX_GYRO_MEAN_RAD_S = 0.2
 #: the 1-s means of an accelerometer axis at rest vary less than this (std, m/s²; a tilt
 #: of 1.2 deg moves a horizontal axis by 0.2 m/s²)
 MAX_ACCEL_STD_M_S2 = 0.2
@@ -181,6 +185,11 @@ def imu_noise(rec: Recording, gravity_m_s2: float | None = None) -> tuple[dict, 
         static["accel_std_m_s2"] = check_static(ta, rec.accel, "accel", MAX_ACCEL_STD_M_S2,
                                                 "m/s^2")
         static["accel_limit_m_s2"] = MAX_ACCEL_STD_M_S2
+    mean_rate = float(np.linalg.norm(rec.gyro.mean(axis=0)))
+    if mean_rate > MAX_GYRO_MEAN_RAD_S:
+        raise InputError(f"not a static log: the gyro's mean rate is {mean_rate:.3g} rad/s "
+                         f"> {MAX_GYRO_MEAN_RAD_S:g} rad/s (a steady turn, not a rest "
+                         f"bias)", field="gyro")
 
     rate_g, gap_notes = _rate_and_gaps(t, "gyro")
     notes += gap_notes
