@@ -108,6 +108,7 @@ def test_bias_instability_recovered_from_flicker_noise():
     for k in range(3):
         terms = read_noise_terms(tau, adev[:, k], n, fs, "rad/s")
         assert terms.bias_instability == pytest.approx(B, rel=0.25)
+        assert terms.bias_instability_fit == pytest.approx(B, rel=0.15)
         assert terms.white == pytest.approx(2e-3, rel=0.10)
 
 

@@ -12,7 +12,9 @@ contract of ``gnomon calibrate imu --json``):
   B, ``rate_random_walk_rad_s2_sqrt_hz`` K, ``bias_rad_s`` (the mean rate), each a list
   of 3 (x, y, z; None where the curve does not show the term, with the sentence why in
   ``why_none``), and the same in the datasheet units ``angle_random_walk_deg_sqrt_h``
-  (N·180/π·60), ``bias_instability_deg_h``;
+  (N·180/π·60), ``bias_instability_deg_h``; ``bias_instability_fit_rad_s`` B from the
+  fitted model, ``bias_instability_bound_rad_s`` the bound when B is None, ``read_at_tau_s``
+  where each term was read, ``model`` the fitted model's coefficients;
 * ``accel``: ``noise_density_m_s2_sqrt_hz`` N (velocity random walk),
   ``bias_instability_m_s2`` B, ``random_walk_m_s3_sqrt_hz`` K, ``mean_m_s2`` and the one
   observable part of its bias, ``bias_along_gravity_m_s2 = |mean| - g`` (``bias_note``
@@ -145,6 +147,8 @@ def _terms(y: np.ndarray, rate_hz: float, sensor: str):
                kk: [a.random_walk for a in terms]}
     section["bias_instability_bound" + kb[len("bias_instability"):]] = [
         a.bias_instability_bound for a in terms]
+    section["bias_instability_fit" + kb[len("bias_instability"):]] = [
+        a.bias_instability_fit for a in terms]
     section["read_at_tau_s"] = {
         kn: [a.white_tau_s for a in terms], kb: [a.bias_instability_tau_s for a in terms],
         kk: [a.random_walk_tau_s for a in terms]}
