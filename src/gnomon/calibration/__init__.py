@@ -40,8 +40,15 @@ shapes); the public names below are importable from ``gnomon.calibration`` itsel
   the same ``MagCalibration`` (model ``"twostep"``). Its names are imported from that
   module (``gnomon.twostep`` re-exports them), not from here: its ``MIN_SAMPLES`` and
   ``MAX_CONDITION`` are its own.
-* ``noise`` (to come): the IMU's noise (gyro, accelerometer, magnetometer) from its Allan
-  deviation.
+* :mod:`~gnomon.calibration.allan`: the overlapping Allan deviation of a rate series
+  (:func:`allan_deviation`) and the IEEE Std 952 noise terms read off its curve
+  (:func:`read_noise_terms`: white noise N, bias instability B, rate random walk K).
+* :mod:`~gnomon.calibration.imu_noise`: a static log's gyro and accelerometer noise and
+  rest biases (:func:`imu_noise`, ``gnomon calibrate imu``), its JSON form
+  (:func:`save_imu_noise`, :func:`load_imu_noise`); :mod:`~gnomon.calibration.allan_plot`
+  its figure (:func:`plot_allan`).
+* :mod:`~gnomon.calibration.noise_params`: a filter's noise parameters from that report
+  (:func:`noise_params`, ``gnomon estimate --noise``).
 
 Why written here rather than taken from a package (checked on PyPI, 2026): ``magcal``
 (1.0.1) is an interactive serial-port tool whose fit is an unconstrained quadric least
@@ -54,11 +61,15 @@ for clustering; ``magcc`` is a live UDP/browser tool. None does a constrained, w
 quality-reported fit with a refusal, so this package uses numpy and scipy only.
 """
 
+from gnomon.calibration.allan import allan_deviation, read_noise_terms
+from gnomon.calibration.allan_plot import plot_allan
 from gnomon.calibration.apply import apply_mag_calibration, calibrate_mag
 from gnomon.calibration.coverage import COVERAGE_CELLS, coverage_cells, sphere_coverage
 from gnomon.calibration.field import igrf_field_uT
 from gnomon.calibration.fit import fit_mag
 from gnomon.calibration.gyro import MAX_GYRO_CONDITION, gyro_offset_uT
+from gnomon.calibration.imu_noise import imu_noise, load_imu_noise, save_imu_noise
+from gnomon.calibration.noise_params import noise_params
 from gnomon.calibration.plot import plot_mag_calibration
 from gnomon.calibration.result import (
     MAX_ANISOTROPY,
@@ -75,4 +86,5 @@ __all__ = ["MagCalibration", "fit_mag", "calibrate_mag", "apply_mag_calibration"
            "save_mag_calibration", "load_mag_calibration", "sphere_coverage", "coverage_cells",
            "igrf_field_uT", "gyro_offset_uT", "mag_uT_of", "plot_mag_calibration", "MODELS",
            "MIN_COVERAGE", "MAX_CONDITION", "COVERAGE_CELLS", "MIN_SAMPLES",
-           "MAX_ANISOTROPY", "MAX_GYRO_CONDITION"]
+           "MAX_ANISOTROPY", "MAX_GYRO_CONDITION", "allan_deviation", "read_noise_terms",
+           "imu_noise", "save_imu_noise", "load_imu_noise", "noise_params", "plot_allan"]

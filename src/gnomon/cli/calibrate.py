@@ -1,5 +1,6 @@
 """``gnomon calibrate SENSOR``: sensor calibration from a recording or log (``mag``: hard and
-soft iron; ``mag --orbit``: TWOSTEP)."""
+soft iron; ``mag --orbit``: TWOSTEP; ``imu``: the gyro's and accelerometer's noise from
+the Allan deviation of a static log)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,8 @@ from gnomon.errors import InputError
 
 def add_parser(sub) -> None:
     s = sub.add_parser("calibrate", help="sensor calibration from a recording or log "
-                                         "(mag: hard and soft iron)")
+                                         "(mag: hard and soft iron; imu: noise from a "
+                                         "static log)")
     csub = s.add_subparsers(dest="sensor", metavar="SENSOR")
     c = csub.add_parser(
         "mag", help="magnetometer hard/soft iron by a constrained ellipsoid fit, with a "
@@ -54,6 +56,88 @@ def add_parser(sub) -> None:
                         "(default: estimated from the data)")
     add_csv_options(c)
     c.set_defaults(func=run_mag)
+    _add_imu_parser(csub)
+
+
+def _add_imu_parser(csub) -> None:
+    c = csub.add_parser(
+        "imu", help="gyro and accelerometer noise (Allan deviation: angle random walk, bias "
+                    "instability, rate random walk) and rest biases from a static log; "
+                    "--out for gnomon estimate --noise",
+        description="The overlapping Allan deviation of each gyro and accelerometer axis of "
+                    "a log recorded at rest (hours on a steady table, after warm-up), the "
+                    "IEEE Std 952 noise terms read off it and the rest biases "
+                    "(docs/calibration.md, 'IMU noise'). Refused when the log is not "
+                    "static.")
+    c.add_argument("input", help="static recording file or folder (any format gnomon reads)")
+    add_format_option(c)
+    add_log_options(c)
+    c.add_argument("--out", help="write the noise report as JSON (for gnomon estimate "
+                                 "--noise)")
+    c.add_argument("--plot", help="write the Allan deviation figure, e.g. allan.png")
+    c.add_argument("--json", action="store_true", help="print the report as JSON")
+    c.add_argument("--gravity-m-s2", type=float, dest="gravity_m_s2",
+                   help="local gravity for the accelerometer's bias along gravity (default "
+                        "standard gravity 9.80665 m/s^2)")
+    add_csv_options(c)
+    c.set_defaults(func=run_imu)
+
+
+def run_imu(args) -> int:
+    """``gnomon.calibration.imu_noise.imu_noise(gnomon.io.read(path))``, ``--out``
+    ``save_imu_noise``, ``--plot`` ``plot_allan``. ``--json`` prints the report (keys:
+    ``gyro``, ``accel``, ``duration_s``, ``static``, ``notes``, ``method``, ``input``)."""
+    from gnomon.calibration.imu_noise import imu_noise, save_imu_noise
+
+    rec = read_input(args)
+    report, curves = imu_noise(rec, gravity_m_s2=args.gravity_m_s2)
+    report = {**report, "input": str(args.input)}
+    if args.out:
+        save_imu_noise(args.out, report)
+        report["out"] = str(args.out)
+    if args.plot:
+        from gnomon.calibration.allan_plot import plot_allan
+
+        plot_allan(report, curves, args.plot, title=str(args.input))
+        report["plot"] = str(args.plot)
+    if args.json:
+        print_json(report)
+        return 0
+    g, a = report["gyro"], report["accel"]
+    print(f"IMU noise of {args.input}: {report['duration_s']:.1f} s at rest, gyro "
+          f"{g['rate_hz']:.4g} Hz" + (f", accelerometer {a['rate_hz']:.4g} Hz" if a else ""))
+    rows = [("gyro", "white noise N (angle random walk)", g["noise_density_rad_s_sqrt_hz"],
+             "rad/s/sqrt(Hz)", g["angle_random_walk_deg_sqrt_h"], "deg/sqrt(h)"),
+            ("gyro", "bias instability B", g["bias_instability_rad_s"], "rad/s",
+             g["bias_instability_deg_h"], "deg/h"),
+            ("gyro", "rate random walk K", g["rate_random_walk_rad_s2_sqrt_hz"],
+             "rad/s^2/sqrt(Hz)", None, ""),
+            ("gyro", "mean rate (bias + Earth rate)", g["bias_rad_s"], "rad/s", None, "")]
+    if a:
+        rows += [("accel", "white noise N (velocity random walk)",
+                  a["noise_density_m_s2_sqrt_hz"], "m/s^2/sqrt(Hz)",
+                  a["velocity_random_walk_m_s_sqrt_h"], "m/s/sqrt(h)"),
+                 ("accel", "bias instability B", a["bias_instability_m_s2"], "m/s^2", None, ""),
+                 ("accel", "random walk K", a["random_walk_m_s3_sqrt_hz"], "m/s^3/sqrt(Hz)",
+                  None, "")]
+    for sensor, what, v, unit, alt, alt_unit in rows:
+        line = f"  {sensor:5s} {what}: [{_fmt(v)}] {unit}"
+        if alt is not None:
+            line += f" = [{_fmt(alt)}] {alt_unit}"
+        print(line)
+    if a:
+        print(f"  accel bias along gravity |mean| - g: {a['bias_along_gravity_m_s2']:.4g} m/s^2 "
+              f"(g = {a['gravity_m_s2']:.5g} m/s^2, {a['gravity_source']}); {a['bias_note']}")
+    for note in report["notes"]:
+        print(f"  note: {note}")
+    for key in ("out", "plot"):
+        if key in report:
+            print(f"  wrote {report[key]}")
+    return 0
+
+
+def _fmt(values) -> str:
+    return ", ".join("-" if v is None else f"{v:.3g}" for v in values)
 
 
 def run_mag(args) -> int:

@@ -37,6 +37,10 @@ def add_parser(sub) -> None:
                         "(forward and backward passes; --filter NAME picks NAME-offline), with "
                         "a per-axis uncertainty (drawn as a band by --plot)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
+    s.add_argument("--noise", metavar="NOISE.json",
+                   help="the filter's noise parameters from `gnomon calibrate imu --out` "
+                        "(Allan deviation of a static log; --param overrides; the JSON's "
+                        "noise_params says which parameter came from which term)")
     add_format_option(s)
     add_log_options(s)
     s.add_argument("--out", help="write the estimate (.csv or .h5)")
@@ -82,12 +86,15 @@ def run(args) -> int:
     if args.mag_calibration:
         rec, cal_summary = _apply_mag_calibration(rec, args.mag_calibration)
     args.filter, chosen = _estimate_filter(args.filter, args.offline, rec)
+    params, noise_summary = parse_pairs(args.param), None
+    if args.noise:  # gnomon calibrate imu --out: the noise terms as filter parameters
+        params, noise_summary = _noise_params(args.noise, args.filter, rec, params)
     if args.backend == "c":  # the exported C flight code, built once into the cache
         from gnomon.export.backend import run_c
 
-        est = run_c(args.filter, rec, args.precision, parse_pairs(args.param))
+        est = run_c(args.filter, rec, args.precision, params)
     else:
-        est = registry.create(args.filter, parse_pairs(args.param)).run(rec)
+        est = registry.create(args.filter, params).run(rec)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
                **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,
@@ -97,6 +104,8 @@ def run(args) -> int:
         summary["mag_calibration"] = cal_summary
     if alignment is not None:
         summary["alignment"] = alignment
+    if noise_summary is not None:
+        summary["noise_params"] = noise_summary
     if rec.q_true is not None:
         summary["errors"] = score(rec.q_true, est.q, rec.score_mask)
     matched = None
@@ -135,6 +144,8 @@ def _print_summary(s: dict) -> None:
         print(f"  magnetometer calibration ({cal['from']}): {cal['model']}, "
               f"offset {[round(v, 2) for v in cal['offset_uT']]} uT, coverage "
               f"{cal['coverage']:.2f}, residual {cal['residual_uT']:.2f} uT")
+    for note in s.get("noise_params", {}).get("notes", []):
+        print(f"  noise ({s['noise_params']['from']}): {note}")
     for w in s["warnings"]:
         print(f"  warning: {w['message']}")
     for line in s.get("notes", []):
@@ -229,6 +240,22 @@ def _estimate_filter(name: str | None, offline: bool, rec) -> tuple[str, str | N
         return f"{name}-offline", None
     raise InputError(f"{name!r} has no offline form; offline filters: "
                      f"{', '.join(registry.names(offline=True))}", field="--filter")
+
+
+def _noise_params(path: str, name: str, rec, params: dict) -> tuple[dict, dict]:
+    """``gnomon.calibration.noise_params.noise_params(load_imu_noise(path), name,
+    accelerometer rate)`` under the explicit ``params`` (``--param`` wins): (the filter's
+    parameters, the JSON's ``noise_params``: ``from``, ``params`` (those set),
+    ``overridden`` (by --param), ``notes``)."""
+    from gnomon.calibration.imu_noise import load_imu_noise
+    from gnomon.calibration.noise_params import noise_params
+
+    rate = rec.rate_hz("accel") if rec.accel is not None else None
+    from_noise, notes = noise_params(load_imu_noise(path), name, rate)
+    overridden = sorted(k for k in from_noise if k in params)
+    notes += [f"{k}: --param {k}={params[k]} overrides the noise file" for k in overridden]
+    return {**from_noise, **params}, {"from": str(path), "params": from_noise,
+                                      "overridden": overridden, "notes": notes}
 
 
 def _apply_mag_calibration(rec, which: str):
