@@ -29,13 +29,10 @@ def add_parser(sub) -> None:
                     "directions as you can (docs/calibration.md). Spacecraft: --orbit "
                     "estimates the bias alone by TWOSTEP against the recording's field "
                     "model, whatever the attitude.")
-    c.add_argument("input", help="recording file or folder (any format gnomon reads)")
-    add_format_option(c)
-    add_log_options(c)
-    c.add_argument("--out", help="write the calibration as JSON (for gnomon estimate "
-                                 "--mag-calibration)")
-    c.add_argument("--plot", help="write a figure of raw and corrected samples, e.g. cal.png")
-    c.add_argument("--json", action="store_true", help="print the report as JSON")
+    _add_io_options(c, "recording file or folder (any format gnomon reads)",
+                    out="write the calibration as JSON (for gnomon estimate "
+                        "--mag-calibration)",
+                    plot="write a figure of raw and corrected samples, e.g. cal.png")
     c.add_argument("--field-uT", type=float, dest="field_uT",
                    help="the local field magnitude B in uT (default: from --location/--date, "
                         "else the data's own scale)")
@@ -59,6 +56,17 @@ def add_parser(sub) -> None:
     _add_imu_parser(csub)
 
 
+
+def _add_io_options(c, input_help: str, *, out: str, plot: str) -> None:
+    """What every ``calibrate`` subcommand takes: the input, its format and log options,
+    ``--out``, ``--plot`` and ``--json``."""
+    c.add_argument("input", help=input_help)
+    add_format_option(c)
+    add_log_options(c)
+    c.add_argument("--out", help=out)
+    c.add_argument("--plot", help=plot)
+    c.add_argument("--json", action="store_true", help="print the report as JSON")
+
 def _add_imu_parser(csub) -> None:
     c = csub.add_parser(
         "imu", help="gyro and accelerometer noise (Allan deviation: angle random walk, bias "
@@ -69,13 +77,9 @@ def _add_imu_parser(csub) -> None:
                     "IEEE Std 952 noise terms read off it and the rest biases "
                     "(docs/calibration.md, 'IMU noise'). Refused when the log is not "
                     "static.")
-    c.add_argument("input", help="static recording file or folder (any format gnomon reads)")
-    add_format_option(c)
-    add_log_options(c)
-    c.add_argument("--out", help="write the noise report as JSON (for gnomon estimate "
-                                 "--noise)")
-    c.add_argument("--plot", help="write the Allan deviation figure, e.g. allan.png")
-    c.add_argument("--json", action="store_true", help="print the report as JSON")
+    _add_io_options(c, "static recording file or folder (any format gnomon reads)",
+                    out="write the noise report as JSON (for gnomon estimate --noise)",
+                    plot="write the Allan deviation figure, e.g. allan.png")
     c.add_argument("--gravity-m-s2", type=float, dest="gravity_m_s2",
                    help="local gravity for the accelerometer's bias along gravity (default "
                         "standard gravity 9.80665 m/s^2)")
