@@ -170,11 +170,12 @@ def _print_benchmark(res, args) -> None:
         tr = res["truth"]
         print(f"truth: {tr['frame']} (declination {tr['declination_deg']:+.3f} deg applied); "
               f"scored {tr['score_window_s'][0]:g}-{tr['score_window_s'][1]:g} s")
-    print(f"\n{'method':<16}{'total':>9}{'heading':>9}{'inclin.':>9}{'trials':>8}   "
+    mw = max(16, *(len(m) + 2 for m in methods))  # the method column
+    print(f"\n{'method':<{mw}}{'total':>9}{'heading':>9}{'inclin.':>9}{'trials':>8}   "
           "(mean over trials of the RMSE, deg)")
     for m in methods:
         v = res["mean"][m]
-        print(f"{m:<16}{v['total_deg']:>9.2f}{v['heading_deg']:>9.2f}"
+        print(f"{m:<{mw}}{v['total_deg']:>9.2f}{v['heading_deg']:>9.2f}"
               f"{v['inclination_deg']:>9.2f}{v['trials']:>8}")
     from gnomon.benchmark import group_kinds
 
@@ -183,10 +184,10 @@ def _print_benchmark(res, args) -> None:
                          if g.startswith(kind + ":")})
         w = max(10, *(len(v) + 2 for v in values))
         print(f"\nper {kind}: mean total RMSE (deg)")
-        print(f"{'method':<16}" + "".join(f"{v:>{w}}" for v in values))
+        print(f"{'method':<{mw}}" + "".join(f"{v:>{w}}" for v in values))
         for m in methods:
             row = res["groups"].get(m, {})
-            print(f"{m:<16}" + "".join(
+            print(f"{m:<{mw}}" + "".join(
                 f"{row.get(f'{kind}:{v}', {}).get('total_deg', math.nan):>{w}.2f}"
                 for v in values))
     if res.get("alignment"):
