@@ -18,12 +18,12 @@ import json
 
 import numpy as np
 import pytest
+from test_alignment import _mocap, _motion
 
 from gnomon.benchmark.scoring import score_trial
 from gnomon.cli import main
 from gnomon.estimators import registry
 from gnomon.io import read
-from test_alignment import _mocap, _motion
 
 G = 9.80665
 
