@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gnomon.kernels.simulate import ahrs_batch
+from gnomon.metrics import error_angle_rad
 from gnomon.rotation import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 from gnomon.simulation.ahrs import (
     AhrsSimParams,
@@ -90,6 +91,29 @@ def test_constant_rate_integrates_to_the_exponential():
         assert err.max() < 1e-12 * len(t)
         np.testing.assert_allclose(w[0], np.broadcast_to(w_b, (len(t), 3)), atol=1e-12)
         np.testing.assert_allclose(gyro[0], w[0], atol=0)           # no bias, no noise
+
+
+def test_coning_motion_integrates_to_its_closed_form_at_fourth_order():
+    """Classical coning (half-angle a = 0.2 rad at 1 Hz): q(t) = [cos a/2, sin a/2 cos Ωt,
+    sin a/2 sin Ωt, 0] for the body rate [-Ω sin a sin Ωt, Ω sin a cos Ωt, -2Ω sin² a/2].
+    After 60 s at 100 Hz the 4th-order Magnus step is 8.9e-6 deg off with one substep
+    (8 midpoint steps: 2.2e-3 deg), and halving the substep divides the error by 16."""
+    om, a = 2.0 * np.pi, 0.2
+    f = [[1.0, 1.0, 0.0]]
+    ph = [[np.pi, np.pi / 2, -np.pi / 2]]
+    amp = [[om * np.sin(a), om * np.sin(a), 2.0 * om * np.sin(a / 2) ** 2]]
+    q0 = np.array([np.cos(a / 2), np.sin(a / 2), 0.0, 0.0])
+    errs = []
+    for substeps in (1, 2):
+        t, _, _, _, _, q, w = _kernel(6001, 0.01, substeps, f, ph, amp, q0, np.zeros(4))
+        exact = np.stack([np.full_like(t, np.cos(a / 2)), np.sin(a / 2) * np.cos(om * t),
+                          np.sin(a / 2) * np.sin(om * t), np.zeros_like(t)], axis=1)
+        errs.append(np.degrees(error_angle_rad(exact, q[0])).max())
+        mid = t[1:] - 0.005
+        np.testing.assert_allclose(w[0, 1:, 2], -2.0 * om * np.sin(a / 2) ** 2, atol=1e-13)
+        np.testing.assert_allclose(w[0, 1:, 0], -om * np.sin(a) * np.sin(om * mid), atol=1e-12)
+    assert errs[0] < 2e-5
+    assert 12.0 < errs[0] / errs[1] < 20.0
 
 
 def test_resting_imu_reads_gravity_and_the_field():

@@ -28,8 +28,8 @@ ratio to VQF's ``update``.
 
 Simulation (``simulation``): simulated samples per second of the compiled, batched IMU
 simulator (``gnomon.simulation.ahrs.simulate_ahrs_batch``, as a campaign chunk calls it:
-``sim_runs`` runs of 120 s at 100 Hz with 8 truth substeps, each run's random numbers
-drawn by its own generator), median of ``repeats`` calls, compilation excluded.
+``sim_runs`` runs of 120 s at 100 Hz with one 4th-order truth step per sample, each
+run's random numbers drawn by its own generator), median of ``repeats`` calls, compilation excluded.
 
 Result (``gnomon bench --json``)::
 

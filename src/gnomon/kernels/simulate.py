@@ -29,12 +29,16 @@ from numba import njit
 
 from gnomon.kernels.quat import SMALL_TH2, exp_mul, mul, rotate_inv
 
-__all__ = ["ANCHOR_EVERY", "BLOCK", "sinusoid_tables", "ahrs_batch"]
+__all__ = ["ANCHOR_EVERY", "BLOCK", "CONING", "GAUSS_C", "sinusoid_tables", "ahrs_batch"]
 
 #: samples between two exact evaluations of a sinusoid's phase (the others by rotation)
 ANCHOR_EVERY = 64
 #: runs computed side by side (the innermost loop)
 BLOCK = 8
+#: the Gauss-Legendre points of a substep of length h sit at h (1/2 ∓ GAUSS_C)
+GAUSS_C = math.sqrt(3.0) / 6.0
+#: the commutator term of the 4th-order Magnus step: CONING h² (w_a × w_b)
+CONING = math.sqrt(3.0) / 12.0
 
 
 @njit(cache=True)
@@ -145,8 +149,10 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
 
     Model (``gnomon.simulation.ahrs``): the body rate ``w_b(t)`` (rad/s) is a sum of
     sinusoids (zero before ``rest_s`` s); the attitude is integrated from it with
-    ``substeps`` exponential steps per sample interval at the substeps' midpoints
-    (their product, then ``q_nb[k+1] = normalise(q_nb[k] ⊗ step)``); the gyro reads the
+    ``substeps`` 4th-order Magnus steps per sample interval (a substep of length ``h``:
+    ``exp(h/2 (w_a + w_b) + √3/12 h² w_a × w_b)`` from the rates at its two
+    Gauss-Legendre points; their product, then ``q_nb[k+1] = normalise(q_nb[k] ⊗
+    step)``); the gyro reads the
     rate at the interval's midpoint (sample 0: at ``t[0]``) plus a bias (a constant plus
     a random walk) and white noise; the accelerometer ``R(q_nb)ᵀ (acc_n + a_lin)`` plus
     noise, the magnetometer ``R(q_nb)ᵀ (m_n + d)`` plus noise, with the linear
@@ -177,17 +183,20 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
     n = t.shape[0]
     h = dt / substeps
     n_runs = q0.shape[0]
-    # times after sample k at which the rate is wanted: the substeps' midpoints, then the
-    # interval's midpoint (the gyro's next sample)
-    offsets = np.empty(substeps + 1)
+    # times after sample k at which the rate is wanted: each substep's two Gauss-Legendre
+    # points, then the interval's midpoint (the gyro's next sample)
+    offsets = np.empty(2 * substeps + 1)
     for i in range(substeps):
-        offsets[i] = (i + 0.5) * h
-    offsets[substeps] = 0.5 * dt
+        offsets[2 * i] = (i + 0.5 - GAUSS_C) * h
+        offsets[2 * i + 1] = (i + 0.5 + GAUSS_C) * h
+    offsets[2 * substeps] = 0.5 * dt
+    half_h = 0.5 * h
+    coning = CONING * h * h
     no_offset = np.zeros(0)
     hr, ha, hd = rate_f.shape[1], acc_f.shape[1], dist_f.shape[1]
     cols = 3 * BLOCK
     rot, coef, cs = np.zeros((hr, 2, cols)), np.zeros((hr, 3, cols)), np.zeros((hr, 2, cols))
-    off = np.zeros((substeps + 1, hr, 2, cols))
+    off = np.zeros((2 * substeps + 1, hr, 2, cols))
     rot_a, coef_a, cs_a = np.zeros((ha, 2, cols)), np.zeros((ha, 3, cols)), np.zeros((ha, 2, cols))
     rot_d, coef_d, cs_d = np.zeros((hd, 2, cols)), np.zeros((hd, 3, cols)), np.zeros((hd, 2, cols))
     off0 = np.zeros((0, 0, 2, cols))
@@ -199,7 +208,9 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
     q = np.zeros((4, BLOCK))
     step = np.zeros((4, BLOCK))
     e = np.zeros((4, BLOCK))
-    w = np.zeros(cols)
+    wa = np.zeros(cols)
+    wb = np.zeros(cols)
+    rv = np.zeros((3, BLOCK))
     w_next = np.zeros(cols)
     dvec = np.zeros(cols)
     walk = np.zeros((3, BLOCK))
@@ -247,28 +258,39 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
                              bias0, sigma, walk, gyro, bias, accel, mag, q_nb, w_true)
             if k == n - 1:
                 break
-            # the interval [t_k, t_k+1]: the substeps, then the gyro's midpoint rate
-            for i in range(substeps + 1):
-                if i < substeps:
+            # the interval [t_k, t_k+1]: each substep's two Gauss points, then the gyro's
+            # midpoint rate
+            for i in range(2 * substeps + 1):
+                if i < 2 * substeps:
                     g = 1.0 if t_k + offsets[i] >= rest_s else 0.0
                 else:
                     g = 1.0 if t[k + 1] - 0.5 * dt >= rest_s else 0.0
+                wi = wa if i % 2 == 0 else wb
                 for col in range(cols):
-                    w[col] = 0.0
+                    wi[col] = 0.0
                 for hh in range(hr):
                     for j in range(3):
                         for col in range(j * BLOCK, j * BLOCK + nb):
-                            w[col] += (cs[hh, 1, col] * off[i, hh, 0, col]
-                                       + cs[hh, 0, col] * off[i, hh, 1, col])
-                if i == substeps:
+                            wi[col] += (cs[hh, 1, col] * off[i, hh, 0, col]
+                                        + cs[hh, 0, col] * off[i, hh, 1, col])
+                for col in range(cols):
+                    wi[col] *= g
+                if i == 2 * substeps:
                     for col in range(cols):
-                        w_next[col] = w[col] * g
+                        w_next[col] = wa[col]
                     break
-                gh = g * h
+                if i % 2 == 0:
+                    continue
                 th2_max = 0.0
                 for b in range(nb):
-                    # exp(r), Taylor form of gnomon.kernels.quat.exp_mul (exact below 0.05 rad)
-                    rx, ry, rz = w[b] * gh, w[BLOCK + b] * gh, w[2 * BLOCK + b] * gh
+                    # the 4th-order Magnus rotation vector of the substep, then exp of it
+                    # (Taylor form of gnomon.kernels.quat.exp_mul, exact below 0.05 rad)
+                    ax, ay, az = wa[b], wa[BLOCK + b], wa[2 * BLOCK + b]
+                    bx, by, bz = wb[b], wb[BLOCK + b], wb[2 * BLOCK + b]
+                    rx = half_h * (ax + bx) + coning * (ay * bz - az * by)
+                    ry = half_h * (ay + by) + coning * (az * bx - ax * bz)
+                    rz = half_h * (az + bz) + coning * (ax * by - ay * bx)
+                    rv[0, b], rv[1, b], rv[2, b] = rx, ry, rz
                     th2 = rx * rx + ry * ry + rz * rz
                     th2_max = max(th2_max, th2)
                     t4 = th2 * th2
@@ -280,11 +302,10 @@ def ahrs_batch(t, dt, substeps, rest_s, window_s, rate_f, rate_ph, rate_amp, q0,
                 big = th2_max >= SMALL_TH2
                 if big:
                     for b in range(nb):
-                        ew, ex, ey, ez, _ = exp_mul(1.0, 0.0, 0.0, 0.0, w[b] * gh,
-                                                    w[BLOCK + b] * gh, w[2 * BLOCK + b] * gh,
-                                                    True, False)
+                        ew, ex, ey, ez, _ = exp_mul(1.0, 0.0, 0.0, 0.0, rv[0, b], rv[1, b],
+                                                    rv[2, b], True, False)
                         e[0, b], e[1, b], e[2, b], e[3, b] = ew, ex, ey, ez
-                if i == 0:
+                if i == 1:
                     for j in range(4):
                         for b in range(nb):
                             step[j, b] = e[j, b]

