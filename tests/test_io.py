@@ -656,3 +656,29 @@ def test_a_recording_written_as_csv_reads_back_the_same(tmp_path):
     np.testing.assert_array_equal(back.mag, multi.mag)
     header = (tmp_path / "multi.csv").read_text().splitlines()[0].split(",")
     assert {"w_true_b_x", "w_true_b_y", "w_true_b_z"} <= set(header)
+
+
+@pytest.mark.parametrize("missing", [False, True])
+def test_recording_names_the_first_quaternion_that_is_not_unit(missing):
+    """The first row of q_true whose norm is off by more than 1e-3 is named, counted in
+    the recording's rows whether or not some rows are missing (all NaN)."""
+    from gnomon.recording import Recording
+
+    n = 10
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    if missing:
+        q[2] = np.nan
+    q[6] *= 1.01
+    q[8] *= 0.5
+    kw = dict(t=np.arange(n) * 0.01, gyro=np.zeros((n, 3)))
+    with pytest.raises(InputError) as e:
+        Recording(**kw, q_true=q)
+    assert e.value.field == "q_true" and e.value.row == 6 and "norm 1.01" in str(e.value)
+    q[6] /= 1.01
+    q[8] /= 0.5
+    q[3, 1] = np.inf
+    with pytest.raises(InputError) as e:
+        Recording(**kw, q_true=q)
+    assert e.value.field == "q_true" and e.value.row == 3
+    q[3, 1] = 0.0
+    assert np.array_equal(Recording(**kw, q_true=q).q_true, q, equal_nan=True)

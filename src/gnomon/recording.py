@@ -90,17 +90,25 @@ def _times(name: str, x) -> np.ndarray:
 
 def _quats(name: str, x, n: int) -> np.ndarray:
     q = _vectors(name, x, n, 4)
-    missing = np.all(np.isnan(q), axis=1)
-    _check_finite(name, q, allowed_rows=missing)
-    norm = np.linalg.norm(q[~missing], axis=1)
-    if norm.size and np.any(np.abs(norm - 1.0) > 1e-3):
-        row = int(np.flatnonzero(~missing)[np.argmax(np.abs(norm - 1.0) > 1e-3)])
+    if np.isfinite(q).all():                  # the usual case: no row missing
+        present, norm = None, np.sqrt(np.einsum("ij,ij->i", q, q))
+    else:
+        missing = np.all(np.isnan(q), axis=1)
+        _check_finite(name, q, allowed_rows=missing)
+        present = np.flatnonzero(~missing)
+        norm = np.linalg.norm(q[present], axis=1)
+    off = np.abs(norm - 1.0) > 1e-3
+    if off.any():
+        first = int(np.argmax(off))
+        row = first if present is None else int(present[first])
         raise InputError(f"not a unit quaternion (norm {np.linalg.norm(q[row]):.6g})",
                          field=name, row=row)
     return q
 
 
 def _check_finite(name: str, a: np.ndarray, allowed_rows: np.ndarray | None = None) -> None:
+    if allowed_rows is None and np.isfinite(a).all():
+        return
     bad = ~np.isfinite(a)
     if allowed_rows is not None:
         bad &= ~allowed_rows.reshape((-1,) + (1,) * (a.ndim - 1))
