@@ -82,8 +82,7 @@ def _filter_alone(chunks):
     """Seconds in ``Mahony.run_many`` over the runs of ``chunks`` (lists of seeds),
     each chunk simulated first (not timed), as the campaign's task does."""
     from gnomon.estimators.mahony import Mahony
-    from gnomon.scenarios import load_scenario
-    from gnomon.scenarios.simulator import simulate_many
+    from gnomon.scenarios import load_scenario, simulate_many
 
     sc = load_scenario("imu-handheld")
     params = Mahony.Params()
