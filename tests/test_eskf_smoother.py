@@ -191,11 +191,13 @@ def test_rts_step_equals_batch_least_squares():
 
 
 def test_noise_free_data_give_the_truth():
-    """Noise-free sensors (truth integrated with one exact step per sample, as the filter
-    integrates; a constant gyro bias of 0.5 °/s unknown to the filter; 1 s at rest first so
-    the TRIAD start is exact): the causal estimate is off by hundredths of a degree while
-    it learns the bias, the smoothed attitude and bias are the truth within 1e-4 ° and
-    1e-4 °/s over the whole log."""
+    """Noise-free sensors (a constant gyro bias of 0.5 °/s unknown to the filter; 1 s at
+    rest first so the TRIAD start is exact): the causal estimate is off by hundredths of a
+    degree while it learns the bias, the smoothed attitude and bias are the truth within
+    1e-3 ° and 1e-4 °/s over the whole log. The 1e-3 ° is the model's own error: the
+    filter steps with one rate per sample, the truth is 4th-order (two rates per sample),
+    and the bias-free gyro integrated alone departs from it by up to 1.9e-3 ° over the
+    60 s (measured), which the accelerometer and magnetometer pull back to 5e-4 °."""
     sim = AhrsSimParams(duration_s=60.0, gyro_noise=0.0, bias_rw=0.0, accel_noise=0.0,
                         mag_noise_uT=0.0, substeps=1, rest_s=1.0, gyro_bias_std=0.01)
     rec = simulate_ahrs(sim, np.random.default_rng(3))
@@ -207,7 +209,7 @@ def test_noise_free_data_give_the_truth():
     err = np.degrees(error_angle_rad(rec.q_true, e.q))
     db = np.degrees(np.abs(e.signals["bias_rad_s"] - rec.extra["gyro_bias_rad_s"]))
     assert fwd.max() > 0.01
-    assert err.max() < 1e-4
+    assert err.max() < 1e-3
     assert db.max() < 1e-4
 
 
