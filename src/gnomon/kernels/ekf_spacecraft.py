@@ -16,7 +16,10 @@ one; ``Coefficients`` the inertia, noise and options, built by ``coefficients``.
 sample (``ekf_step``) is the state prediction (RK4 of the dynamics), the covariance
 prediction, then the magnetometer and sun rows of one joint update. ``ekf_row`` is one
 raw sample (its unit vectors, the step, its known inputs held): the batch loop
-``ekf_batch`` and the per-sample kernel ``ekf_sample`` both run it.
+``ekf_batch`` and the per-sample kernel ``ekf_sample`` both run it. Products and the
+update's solve use the small-matrix loops of ``gnomon.kernels.linalg`` (``matmul``,
+``spd_solve``), not numba's ``@`` / ``np.linalg`` (BLAS/LAPACK per call: 7.7 -> 6.2 µs
+per sample, the rest is the arithmetic of the 7x7 Joseph update and its allocations).
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from gnomon.kernels.linalg import cross_arr, skew_arr
+from gnomon.kernels.linalg import cross_arr, matmul, matmul_bt, matvec, skew_arr, spd_solve
 from gnomon.kernels.quat import (
     normalised,
     omega,
@@ -97,17 +100,17 @@ def ekf_f(z, J, Jinv, h, hdot, tau, w_io_o, gg):
     """
     w = z[0:3]
     q = z[3:7]
-    Jw = J @ w
+    Jw = matvec(J, w)
     torque = -cross_arr(w, Jw + h) - hdot + tau
     if gg != 0.0:
         nad = np.zeros(3)
         nad[2] = 1.0
         o = rt_v(q, nad)
-        torque = torque + gg * cross_arr(o, J @ o)
+        torque = torque + gg * cross_arr(o, matvec(J, o))
     out = np.empty(7)
-    out[0:3] = Jinv @ torque
+    out[0:3] = matvec(Jinv, torque)
     w_bo = w - rt_v(q, w_io_o)
-    out[3:7] = 0.5 * (xi(q) @ w_bo)
+    out[3:7] = 0.5 * matvec(xi(q), w_bo)
     return out
 
 
@@ -117,17 +120,18 @@ def ekf_jacobian(z, J, Jinv, h, w_io_o, gg):
     w = z[0:3]
     q = z[3:7]
     F = np.zeros((7, 7))
-    F[0:3, 0:3] = Jinv @ (skew_arr(J @ w + h) - skew_arr(w) @ J)
+    F[0:3, 0:3] = matmul(Jinv, skew_arr(matvec(J, w) + h) - matmul(skew_arr(w), J))
     if gg != 0.0:
         nad = np.zeros(3)
         nad[2] = 1.0
         o = rt_v(q, nad)
         d_o = d_rt_v(q, nad)
-        F[0:3, 3:7] = gg * (Jinv @ ((skew_arr(o) @ J - skew_arr(J @ o)) @ d_o))
+        F[0:3, 3:7] = gg * matmul(Jinv, matmul(matmul(skew_arr(o), J)
+                                               - skew_arr(matvec(J, o)), d_o))
     X = xi(q)
     F[3:7, 0:3] = 0.5 * X
     w_bo = w - rt_v(q, w_io_o)
-    F[3:7, 3:7] = 0.5 * omega(w_bo) - 0.5 * (X @ d_rt_v(q, w_io_o))
+    F[3:7, 3:7] = 0.5 * omega(w_bo) - 0.5 * matmul(X, d_rt_v(q, w_io_o))
     return F
 
 
@@ -153,7 +157,7 @@ def predict_state(c, s, dt):
 def predict_covariance(c, s, z, dt):
     """``P <- Φ P Φᵀ + Q dt`` with ``Φ = I + F(z_{n+1|n}) dt``."""
     Phi = np.eye(7) + ekf_jacobian(z, c.J, c.Jinv, s.h_b, s.w_io_o, c.gg) * dt
-    return Phi @ s.P @ Phi.T + c.Q * dt
+    return matmul_bt(matmul(Phi, s.P), Phi) + c.Q * dt
 
 
 @njit(cache=True)
@@ -191,11 +195,12 @@ def measurement_rows(c, q, mag_u, b_o_u, sun_u, s_o_u, sun_ok, innov):
 def correct(z, P, H, y, R):
     """Joint update (Joseph form, symmetrised); the quaternion is renormalised. Returns the
     new ``(z, P)``."""
-    S = H @ P @ H.T + R
-    K = np.linalg.solve(S, H @ P).T
-    z = z + K @ y
-    IKH = np.eye(7) - K @ H
-    P = IKH @ P @ IKH.T + K @ R @ K.T
+    HP = matmul(H, P)
+    S = matmul_bt(HP, H) + R
+    K = np.ascontiguousarray(spd_solve(S, HP).T)   # K = P Hᵀ S⁻¹ (S, P symmetric)
+    z = z + matvec(K, y)
+    IKH = np.eye(7) - matmul(K, H)
+    P = matmul_bt(matmul(IKH, P), IKH) + matmul_bt(matmul(K, R), K)
     P = 0.5 * (P + P.T)
     z[3], z[4], z[5], z[6] = normalised(z[3], z[4], z[5], z[6])
     return z, P
