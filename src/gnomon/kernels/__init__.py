@@ -31,6 +31,10 @@ The shape of a filter's kernel (as VQF's ``Params`` → ``Coefficients`` → ``S
   inlined into the step, robust-ahrs took 58 s to compile on this project's 2-core
   machine and eskf-r3 48 s; as separate functions 8 s and 17 s, which is what a user's
   first ``gnomon estimate`` waits (``gnomon.kernels.compile_notice`` says so on stderr).
+  robust-ahrs' phases, called only from compiled code, are compiled without the wrappers
+  that let Python (``no_cpython_wrapper``) or a C caller (``no_cfunc_wrapper``) call
+  them: 12-18 % of its compile time (6.4-6.7 -> 5.2-5.6 s on one machine, 15.2 -> 12.5-13.6 s
+  on a slower one; its readable twin is numpy code of its own and never calls them); the entry points keep their Python wrapper.
   The price is a call per phase and sample: batch loops 1.2-1.4x slower than inlined
   (``gnomon bench``: robust-ahrs 1.79x and eskf-r3 1.37x the speed of VQF's C++
   ``updateBatch``, eskf-r6 0.94x; they were 2.71x, 1.89x and 1.31x).

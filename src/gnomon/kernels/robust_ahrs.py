@@ -107,7 +107,7 @@ def _start(f, lp):
     return n, done
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def lowpass2(f, x0, x1, lp):
     """``LowPass`` ``lp`` of two values, state ``f`` (``LOWPASS_2``): the outputs."""
     z0, z1 = f.z0, f.z1
@@ -117,7 +117,7 @@ def lowpass2(f, x0, x1, lp):
     return _filter_step(z0, z1, 0, x0, lp), _filter_step(z0, z1, 1, x1, lp)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def _lowpass3_lines(z0, z1, x0, x1, x2, n, done, lp):
     """Three components on the delay lines ``z0``, ``z1`` (3,): the running mean while
     ``n > 0`` (the ``n``-th start-up sample), the Butterworth step otherwise."""
@@ -128,14 +128,14 @@ def _lowpass3_lines(z0, z1, x0, x1, x2, n, done, lp):
             _filter_step(z0, z1, 2, x2, lp))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def lowpass3(f, x0, x1, x2, lp):
     """``LowPass`` ``lp`` of a 3-vector, state ``f`` (``LOWPASS_3``): the outputs."""
     n, done = _start(f, lp) if f.n >= 0 else (0, False)
-    return _lowpass3_lines(f.z0, f.z1, x0, x1, x2, n, done, lp)
+    return _lowpass3_lines(f.z0[:], f.z1[:], x0, x1, x2, n, done, lp)  # [:] as lowpass33: one signature
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def lowpass33(f, a, lp):
     """``LowPass`` ``lp`` of a 3x3 matrix (row-major 9-tuple ``a``), state ``f``
     (``LOWPASS_33``, a row of delay lines per matrix row): the output as a 9-tuple."""
@@ -158,7 +158,7 @@ def wrap(a):
 
 
 # ---------------------------------------------------------------- 1. rest detection
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_gyro(s, c, gx, gy, gz):
     """Gyro part of the rest detection: low-pass the rate (kept in ``s.gyro_lp``, the bias
     measurement at rest); a deviation above the threshold, or a low-passed rate beyond
@@ -181,7 +181,7 @@ def _chord2(ax, ay, az, bx, by, bz):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_begin(s, lx, ly, lz):
     """A rest candidacy begins at this accelerometer sample: keep the low-passed
     accelerometer ``l`` and magnetometer directions and start the gyro's rotation."""
@@ -194,7 +194,7 @@ def rest_begin(s, lx, ly, lz):
     q[0], q[1], q[2], q[3] = 1.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_turn(s, dt, gx, gy, gz):
     """During a rest candidacy, ``rest_q <- rest_q ⊗ exp((ω - b) dt)``: the rotation the
     gyro (minus the bias estimate) says the body made since it began."""
@@ -205,7 +205,7 @@ def rest_turn(s, dt, gx, gy, gz):
             (gz - s.bias[2]) * dt, True, True)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def gyro_says_turned(s, c):
     """Whether the gyro's rotation since the candidacy began (``rest_q``) would have turned
     the accelerometer's direction, or the magnetometer's (its hard-iron offset removed), by
@@ -224,7 +224,7 @@ def gyro_says_turned(s, c):
     return False
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
     threshold of the low-passed specific force while its direction stays within
@@ -256,7 +256,7 @@ def rest_acc(s, c, ax, ay, az):
             s.rest = True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_mag(s, c, mx, my, mz):
     """Magnetometer part of the rest detection: low-pass the field in the body frame; a
     direction farther than ``rest_th_turn`` from the one the candidacy began with ends
@@ -273,7 +273,7 @@ def rest_mag(s, c, mx, my, mz):
 
 
 # ---------------------------------------------------------------- 2. strapdown
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def strapdown(s, dt, gx, gy, gz):
     """``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` over the actual interval ``dt`` (s); adds
     ``|ω - b|² dt`` to ``s.rot2`` (the heading KF's rotation noise)."""
@@ -290,7 +290,7 @@ def strapdown(s, dt, gx, gy, gz):
 
 
 # ---------------------------------------------------------------- 3. inclination
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def inclination(s, c, ax, ay, az):
     """Low-pass the specific force in frame I, see it in frame 6 and turn ``q_acc`` by
     the rotation that takes it to up. Returns ``(fx, fy, ok)``: the normalised filtered
@@ -319,7 +319,7 @@ def inclination(s, c, ax, ay, az):
 
 
 # ---------------------------------------------------------------- 4. gyro bias
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def bias_kf(s, c, R, fx, fy, have_f):
     """Gyro-bias Kalman filter on every ``bias_every``-th accelerometer sample.
 
@@ -350,7 +350,7 @@ def bias_kf(s, c, R, fx, fy, have_f):
                     c.huber)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def bias_update(s, c, H, e0, e1, e2, w0, w1, w2, ei):
     """Kalman update of the bias with the innovation ``e = y - H b``, ``H`` a 9-tuple,
     measurement variances ``w`` (diagonal): ``K = P Hᵀ (H P Hᵀ + W)⁻¹``, ``b += K e``
@@ -389,7 +389,7 @@ def bias_update(s, c, H, e0, e1, e2, w0, w1, w2, ei):
 
 
 # ---------------------------------------------------------------- 5. magnetometer
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def mag_accumulate(s, c, R, mx, my, mz):
     """Add the field (hard-iron offset removed) seen in frame 6 to the block sum, and the
     raw field to the hard-iron block sums. Returns whether the block is complete (the
@@ -411,7 +411,7 @@ def mag_accumulate(s, c, R, mx, my, mz):
     return s.mag_count >= c.mag_every or s.k_mag_init == 1.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def hard_iron(s, c, R, cnt):
     """Fold the block of ``cnt`` samples into the weighted hard-iron sums (``R`` = R_6b at
     the block's end) and solve for the offset ``o`` (body).
@@ -451,7 +451,7 @@ def hard_iron(s, c, R, cnt):
     hi.o[0], hi.o[1], hi.o[2] = (o0, o1, o2) if fits else (0.0, 0.0, 0.0)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def mag_disturbance(s, c, nm, dip):
     """Compare the low-passed norm and dip of the field with the learned reference: flag
     a disturbance outside the thresholds, clear it after ``mag_min_undisturbed_s``
@@ -473,7 +473,7 @@ def mag_disturbance(s, c, nm, dip):
     return cur_n, cur_d
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def new_field(s, c, cur_n, cur_d):
     """A new, steady field replaces the reference after ``mag_new_s`` of motion in it
     (``mag_new_first_s`` while there is no reference yet). Returns the soft de-weighting
@@ -503,7 +503,7 @@ def new_field(s, c, cur_n, cur_d):
     return 1.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def vertical_bias_var(s, R):
     """Variance (rad/s)² of the bias estimate about the vertical: ``uᵀ P u`` with ``u``
     the third row of ``R`` = R_6b (up in body coordinates)."""
@@ -515,7 +515,7 @@ def vertical_bias_var(s, R):
     return v
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def heading_gain(s, c, soft, p_bv):
     """The heading gain of this update: first-order ``k_mag`` or the heading KF's gain
     (its random walk raised by the vertical bias variance ``p_bv``, (rad/s)²); 0 while a
@@ -551,7 +551,7 @@ def heading_gain(s, c, soft, p_bv):
     return k
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def magnetometer(s, c, R, mx, my, mz):
     """Heading from the magnetometer ``m`` (body), ``R`` = R_6b: accumulate; on a complete
     block update the hard-iron offset, test for disturbances, turn ``delta`` towards the
@@ -594,7 +594,7 @@ def magnetometer(s, c, R, mx, my, mz):
 
 
 # ---------------------------------------------------------------- the step
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     """One sample in place on the state record ``s``: ``dt`` (s) since the last sample,
     gyro (rad/s), accelerometer (m/s²), magnetometer (body); a zero accelerometer or
@@ -629,7 +629,7 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     return flags, q6
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def _row(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     """One row of the batch loop (and the sample kernel): ``robust_ahrs_step`` on the state
     record ``s``, then ``q_nb = q_z(delta) ⊗ q_6b``. Returns ``(flags, q_nb)``: the step's
@@ -641,7 +641,7 @@ def _row(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     return f, q
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cfunc_wrapper=True)
 def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, dist_out,
                       acc_rate_out, k_mag_out, hi_out, flags_out):
     """Run N samples (``dt`` (N,) s, sensors (N, 3) body) from ``state`` (an array of one
@@ -668,7 +668,7 @@ def robust_ahrs_batch(dt, gyro, acc, mag, state, c, q_out, bias_out, rest_out, d
         flags_out[i] = f
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cfunc_wrapper=True)
 def robust_ahrs_sample(dt, gyro, acc, mag, state, c, q_out):
     """One sample as a row of ``robust_ahrs_batch`` (the same arithmetic): ``dt`` (s),
     ``gyro``, ``acc``, ``mag`` (3,) body frame (an ``acc``/``mag`` with a non-finite
