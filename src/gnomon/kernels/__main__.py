@@ -4,5 +4,8 @@ from gnomon.kernels import PACKAGE_DIR, drop_stale_caches
 
 if __name__ == "__main__":
     dropped = drop_stale_caches()
-    what = "dropped" if dropped else "kept"
-    print(f"{what} the compiled caches in {PACKAGE_DIR / '__pycache__'}")
+    where = PACKAGE_DIR / "__pycache__"
+    if dropped:
+        print(f"dropped the compiled caches of {', '.join(dropped)} in {where}")
+    else:
+        print(f"kept the compiled caches in {where}")

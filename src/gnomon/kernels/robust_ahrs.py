@@ -132,7 +132,8 @@ def _lowpass3_lines(z0, z1, x0, x1, x2, n, done, lp):
 def lowpass3(f, x0, x1, x2, lp):
     """``LowPass`` ``lp`` of a 3-vector, state ``f`` (``LOWPASS_3``): the outputs."""
     n, done = _start(f, lp) if f.n >= 0 else (0, False)
-    return _lowpass3_lines(f.z0[:], f.z1[:], x0, x1, x2, n, done, lp)  # [:] as lowpass33: one signature
+    # the delay lines as views ([:]), as lowpass33 passes its rows: one compiled signature
+    return _lowpass3_lines(f.z0[:], f.z1[:], x0, x1, x2, n, done, lp)
 
 
 @njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
