@@ -89,10 +89,11 @@ def test_simulate_many_equals_simulate():
 
 
 def test_score_runs_equals_the_metrics():
-    """Batched scoring = score_run + score_run_budget on IMU runs, the same keys and the
-    same numbers to 1e-12 (measured: 1.6e-15 of their size; the compiled sums run in
-    another order than numpy's); recordings that do not fit (a sun sensor, a NaN, other
-    time stamps) go to the metrics functions themselves."""
+    """Batched scoring = score_run + score_run_budget on IMU and spacecraft runs (with a
+    sun sensor's sunlit / eclipse phases), the same keys and the same numbers to 1e-12
+    (measured: 1.6e-15 of their size; the compiled sums run in another order than
+    numpy's); recordings that do not fit (a NaN, other time stamps) go to the metrics
+    functions themselves."""
     from gnomon.campaign.scoring import score_runs
     from gnomon.estimators.mahony import Mahony
     from gnomon.metrics import score_run, score_run_budget
@@ -107,6 +108,18 @@ def test_score_runs_equals_the_metrics():
     bad = qs[1].copy()
     bad[5] = np.nan
     cases.append((recs[:2], [qs[0], bad], 1.0))
+    # a sun sensor: the sunlit and eclipse phases on the compiled path too (an orbit with
+    # both, and a short sunlit one whose eclipse phase is empty: NaN), one run alone too
+    from gnomon.rotation import quat_from_rotvec, quat_mul
+    rng = np.random.default_rng(7)
+    orbit = simulate_many([load_scenario("seed001").replace({"duration_s": 4000.0})] * 2,
+                          [1, 2])
+    assert orbit[0].sun_valid.any() and not orbit[0].sun_valid.all()
+    off = [quat_mul(r.q_true, quat_from_rotvec(rng.normal(0, 0.01, (len(r), 3))))
+           for r in orbit]
+    cases += [(orbit, off, 300.0), ([orbit[1]], [off[1]], 0.0),
+              ([sc], [quat_mul(sc.q_true, quat_from_rotvec(np.full((len(sc), 3), 0.02)))],
+               10.0)]
     for rs, q, settle in cases:
         got = score_runs(rs, q, settle)
         for r, qq, row in zip(rs, q, got, strict=True):

@@ -17,7 +17,6 @@ import numpy as np
 
 from gnomon.campaign.task import Task
 from gnomon.errors import InputError
-from gnomon.metrics import score_run, score_run_budget
 
 __all__ = ["simulate_and_score", "simulate_and_score_batch", "accepts_filter_key",
            "DEFAULT_TASK"]
@@ -124,7 +123,7 @@ def simulate_and_score_batch(scenarios, params_list, seeds, filters=None,
             results[k] = q
             return
         settle = _settle_s(scenarios[k], settle_s)
-        scores = {**score_run(recs[k], q, settle), **score_run_budget(recs[k], q, settle)}
+        scores = score_runs([recs[k]], [q], settle)[0]
         results[k].update({f"{name}.{m}": v for m, v in scores.items()})
 
     def score_many(ks, name, qs):

@@ -63,12 +63,13 @@ def _new_row(spec: CampaignSpec, index: int):
     return row, run
 
 
-def _run_inputs(spec: CampaignSpec, run):
-    """``(scenario, task_params, seed)`` of ``run``. Raises if a drawn scenario value is
-    rejected by the schema."""
+def _run_inputs(spec: CampaignSpec, run, base=None):
+    """``(scenario, task_params, seed)`` of ``run``; ``base``: ``as_scenario(spec.scenario)``
+    when the caller has it already (a chunk validates it once). Raises if a drawn
+    scenario value is rejected by the schema."""
     sc_over = {k: v for k, v in run.params.items() if k in spec.scenario_keys}
     task_params = {k: v for k, v in run.params.items() if k not in spec.scenario_keys}
-    scenario = as_scenario(spec.scenario)
+    scenario = as_scenario(spec.scenario) if base is None else base
     if sc_over:
         scenario = scenario.replace(sc_over)
     return scenario, task_params, run.seed
@@ -112,11 +113,15 @@ def execute_chunk(spec: CampaignSpec, indices: list[int]) -> list[dict]:
         return [execute_run(spec, i) for i in indices]
     t0 = time.perf_counter()
     c0 = time.process_time()
+    try:
+        base = as_scenario(spec.scenario)
+    except Exception:  # noqa: BLE001 - then each run fails with the error in its row
+        return [execute_run(spec, i) for i in indices]
     rows, inputs = [], []
     for index in indices:
         row, run = _new_row(spec, index)
         try:
-            inputs.append((row, *_run_inputs(spec, run)))
+            inputs.append((row, *_run_inputs(spec, run, base)))
         except Exception as err:  # noqa: BLE001 - recorded in its row
             _record(row, err)
         rows.append(row)

@@ -51,27 +51,27 @@ def _quantile99(x):
 
 
 @njit(cache=True, error_model="numpy")
-def run_scores(qt, qe, k0, vertical, out):
-    """The scores of one run from sample ``k0`` on into ``out`` (:data:`N_SCORES`,).
+def run_scores(qt, qe, k0, vertical, use, out):
+    """The scores of one run over its samples ``k >= k0`` with ``use[k]`` into ``out``
+    (:data:`N_SCORES`,).
 
     ``qt``, ``qe`` (N, 4): the true and the estimated attitude (same frames, finite);
     ``k0``: the first sample scored (the settling time's); ``vertical``: whether the
     reference frame has a vertical axis (ENU, NWU: heading and inclination are
-    scored, else ``out[3:5]`` is NaN). ``out``: ``rms_deg``, ``max_deg``, ``mean_deg``,
-    ``heading_rms_deg``, ``inclination_rms_deg``, ``x/y/z_rms_deg``,
-    ``x/y/z_p99_deg``, ``p99_deg`` (NaN where no sample is scored).
+    scored, else ``out[3:5]`` is NaN); ``use`` (N,) bool: the samples of the phase
+    scored (all, or the sunlit or eclipse ones). ``out``: ``rms_deg``, ``max_deg``,
+    ``mean_deg``, ``heading_rms_deg``, ``inclination_rms_deg``, ``x/y/z_rms_deg``,
+    ``x/y/z_p99_deg``, ``p99_deg`` (all NaN when no sample is scored).
     """
-    n = qt.shape[0] - k0
-    if n <= 0:
-        out[:] = np.nan
-        return
-    axes = np.empty((4, n))
+    axes = np.empty((4, max(qt.shape[0] - k0, 0)))
     s_err2 = s_err = s_h2 = s_i2 = 0.0
     mx = -np.inf
     s_ax = np.zeros(3)
     h_ok = True
-    for i in range(n):
-        k = k0 + i
+    i = 0
+    for k in range(max(k0, 0), qt.shape[0]):
+        if not use[k]:
+            continue
         tw, tx, ty, tz = qt[k, 0], -qt[k, 1], -qt[k, 2], -qt[k, 3]
         ew, ex, ey, ez = qe[k, 0], qe[k, 1], qe[k, 2], qe[k, 3]
         # d = conj(qt) ⊗ qe: the total angle and the body-axis rotation vector
@@ -116,6 +116,11 @@ def run_scores(qt, qe, k0, vertical, out):
             h_ok = h_ok and math.isfinite(heading) and math.isfinite(incl)
             s_h2 += heading * heading
             s_i2 += incl * incl
+        i += 1
+    n = i
+    if n == 0:
+        out[:] = np.nan
+        return
     out[0] = math.sqrt(s_err2 / n)
     out[1] = mx
     out[2] = s_err / n
@@ -127,4 +132,4 @@ def run_scores(qt, qe, k0, vertical, out):
     for j in range(3):
         out[5 + j] = math.sqrt(s_ax[j] / n)
     for j in range(4):
-        out[8 + j] = _quantile99(axes[j])
+        out[8 + j] = _quantile99(axes[j, :n])

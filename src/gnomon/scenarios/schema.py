@@ -404,7 +404,10 @@ def _all_keys(schema: dict, prefix: str = "") -> list[str]:
     return out
 
 
-def _merge(user: dict, schema: dict, out: dict, prefix: str, root: dict | None = None) -> None:
+def _merge(user: dict, schema: dict, out: dict, prefix: str, root: dict | None = None,
+           checked: set | None = None) -> None:
+    """``user`` over ``out`` (the defaults), each value checked by its schema leaf; the
+    dotted keys checked go into ``checked``."""
     root = schema if root is None else root
     if not isinstance(user, dict):
         raise InputError(f"expected a mapping, got {user!r}", field=prefix.rstrip(".") or None)
@@ -414,9 +417,11 @@ def _merge(user: dict, schema: dict, out: dict, prefix: str, root: dict | None =
             raise InputError(f"unknown scenario key {key!r}{_did_you_mean(key, root)}; known "
                              f"here: {', '.join(sorted(schema))}", field=key)
         if isinstance(schema[k], dict):
-            _merge(v, schema[k], out[k], key + ".", root)
+            _merge(v, schema[k], out[k], key + ".", root, checked)
         else:
             out[k] = schema[k].check(key, v)
+            if checked is not None:
+                checked.add(key)
 
 
 def validate(user: dict) -> dict:
@@ -426,10 +431,12 @@ def validate(user: dict) -> dict:
 
     schema = schema_of(user)
     cfg = defaults(schema)
-    _merge(user or {}, schema, cfg, "")
+    checked: set = set()
+    _merge(user or {}, schema, cfg, "", checked=checked)
     # the defaults themselves are checked too (inertia as a full matrix, etc.)
     for key, value in flatten(cfg).items():
-        set_dotted(cfg, key, _leaf(key, schema).check(key, value), schema)
+        if key not in checked:
+            set_dotted(cfg, key, _leaf(key, schema).check(key, value), schema)
     if schema is IMU_SCHEMA:
         lo, hi = cfg["imu"]["rate_band_low_hz"], cfg["imu"]["rate_band_high_hz"]
         if not lo < hi:
