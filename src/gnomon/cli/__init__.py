@@ -22,7 +22,7 @@ from gnomon.errors import InputError
 
 #: the command modules, in the order of ``gnomon --help``
 COMMANDS = ("filters", "estimate", "live", "export", "calibrate", "inspect", "benchmark",
-            "bench", "simulate", "campaign", "datasets", "reproduce")
+            "bench", "compile", "simulate", "campaign", "datasets", "reproduce")
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
