@@ -67,10 +67,11 @@ n = ENU. The estimate is
   magnet fixed to the sensor, ``R_6b m = h + R_6b o`` with ``h`` fixed in frame 6.
   Exponentially weighted sums (window ``hard_iron_tau_s``) give the least-squares
   ``o`` in closed form, ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m`` (``S = Σ R``,
-  prior ``hard_iron_reg``). ``o`` is subtracted from the magnetometer only while
-  it explains the field (residual energy below ``hard_iron_gate`` of the
-  residual without an offset); a field that varies in space is not explained by
-  a body-fixed offset and leaves ``o = 0``.
+  prior ``hard_iron_reg``; every sum over the samples, each with its own ``R_6b``).
+  ``o`` is subtracted from the magnetometer only while it explains the field
+  (residual energy below ``hard_iron_gate`` of the residual without an offset); a
+  field that varies in space is not explained by a body-fixed offset and leaves
+  ``o = 0``.
 * **Soft de-weighting** (``mag_soft_norm``, ``mag_soft_dip_deg``, off): the
   heading measurement variance grows with the field's norm/dip distance from
   the reference.
@@ -432,9 +433,11 @@ def _magnetometer(s, c, m):
     complete block update the hard-iron offset, test for disturbances and turn ``delta``
     towards the field's heading (and optionally feed the vertical bias)."""
     R, hi = _dcm6(s), s.hard_iron
-    if c.hi_lambda > 0.0:  # block sums of the raw field
+    if c.hi_lambda > 0.0:  # block sums of the raw field, each sample with its own R
         hi.block_m += m
         hi.block_mm += m @ m
+        hi.block_S += R
+        hi.block_rm += R @ m
         m = m - hi.o
     s.mag_sum += R @ m
     s.mag_count += 1
@@ -443,7 +446,7 @@ def _magnetometer(s, c, m):
     cnt = s.mag_count
     m6 = s.mag_sum * (1.0 / cnt)  # the mean field in frame 6
     if c.hi_lambda > 0.0:
-        _hard_iron(s, c, R, cnt)
+        _hard_iron(s, c, cnt)
     s.mag_sum, s.mag_count = 0.0, 0
     soft = 1.0
     if c.mag_rejection:
@@ -461,7 +464,7 @@ def _magnetometer(s, c, m):
         s.bias_at_limit = bool(np.any(np.abs(s.bias) >= c.bias_clip))
 
 
-def _hard_iron(s, c, R, cnt):
+def _hard_iron(s, c, cnt):
     """Fold a block of ``cnt`` samples into the weighted sums and solve for the hard-iron
     offset ``o`` (body).
 
@@ -472,11 +475,11 @@ def _hard_iron(s, c, R, cnt):
     """
     hi, lam = s.hard_iron, c.hi_lambda
     hi.w = lam * hi.w + cnt
-    hi.S = lam * hi.S + cnt * R
-    hi.rm = lam * hi.rm + s.mag_sum + cnt * (R @ hi.o)  # Σ R m of the raw field
+    hi.S = lam * hi.S + hi.block_S  # Σ R, each sample with its own R
+    hi.rm = lam * hi.rm + hi.block_rm  # Σ R m of the raw field
     hi.m = lam * hi.m + hi.block_m
     hi.mm = lam * hi.mm + hi.block_mm
-    hi.block_m, hi.block_mm = 0.0, 0.0
+    hi.block_m, hi.block_mm, hi.block_S, hi.block_rm = 0.0, 0.0, 0.0, 0.0
     w, S, rm = hi.w, hi.S, hi.rm
     A = w * w * (1.0 + c.hi_reg) * np.eye(3) - S.T @ S
     if np.linalg.det(A) <= 0.0:

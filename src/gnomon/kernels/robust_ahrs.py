@@ -401,6 +401,13 @@ def mag_accumulate(s, c, R, mx, my, mz):
         hi.block_m[1] += my
         hi.block_m[2] += mz
         hi.block_mm += mx * mx + my * my + mz * mz
+        rx, ry, rz = linalg.mat3_vec(R, mx, my, mz)
+        hi.block_rm[0] += rx
+        hi.block_rm[1] += ry
+        hi.block_rm[2] += rz
+        for i in range(3):
+            for j in range(3):
+                hi.block_S[i, j] += R[3 * i + j]
         mx -= hi.o[0]
         my -= hi.o[1]
         mz -= hi.o[2]
@@ -413,21 +420,23 @@ def mag_accumulate(s, c, R, mx, my, mz):
 
 
 @njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def hard_iron(s, c, R, cnt):
-    """Fold the block of ``cnt`` samples into the weighted hard-iron sums (``R`` = R_6b at
-    the block's end) and solve for the offset ``o`` (body).
+def hard_iron(s, c, cnt):
+    """Fold the block of ``cnt`` samples into the weighted hard-iron sums (``Σ R_6b`` and
+    ``Σ R_6b m`` summed sample by sample, each with its own rotation: with the block's last
+    ``R_6b`` for all, a turning body showed an offset of about |h|·ω·1.5·dt that was not
+    there) and solve for the offset ``o`` (body).
 
     ``R m = h + R o`` with ``h`` fixed in frame 6: least squares with the prior
     ``reg·w|o|²``, ``(w²(1+reg) I - SᵀS) o = w Σm - Sᵀ Σ R m``. ``o`` is used only when it
     leaves less than ``hi_gate`` of the residual energy without an offset."""
     hi, lam = s.hard_iron, c.hi_lambda
-    o0, o1, o2 = hi.o[0], hi.o[1], hi.o[2]
-    ro = linalg.mat3_vec(R, o0, o1, o2)
     hi.w = lam * hi.w + cnt
     for i in range(3):
         for j in range(3):
-            hi.S[i, j] = lam * hi.S[i, j] + cnt * R[3 * i + j]
-        hi.rm[i] = lam * hi.rm[i] + s.mag_sum[i] + cnt * ro[i]
+            hi.S[i, j] = lam * hi.S[i, j] + hi.block_S[i, j]
+            hi.block_S[i, j] = 0.0
+        hi.rm[i] = lam * hi.rm[i] + hi.block_rm[i]
+        hi.block_rm[i] = 0.0
         hi.m[i] = lam * hi.m[i] + hi.block_m[i]
         hi.block_m[i] = 0.0
     hi.mm = lam * hi.mm + hi.block_mm
@@ -563,7 +572,7 @@ def magnetometer(s, c, R, mx, my, mz):
     inv = 1.0 / cnt
     ex, ey, ez = s.mag_sum[0] * inv, s.mag_sum[1] * inv, s.mag_sum[2] * inv
     if c.hi_lambda > 0.0:
-        hard_iron(s, c, R, cnt)
+        hard_iron(s, c, cnt)
     s.mag_sum[0], s.mag_sum[1], s.mag_sum[2] = 0.0, 0.0, 0.0
     s.mag_count = 0
     soft = 1.0

@@ -203,6 +203,8 @@ HARD_IRON = np.dtype([
     ("o", np.float64, (3,)),  # the offset in use (body, magnetometer unit; 0: none)
     ("block_m", np.float64, (3,)),  # Σ m, Σ |m|² over the current block of mag_every
     ("block_mm", np.float64),
+    ("block_S", np.float64, (3, 3)),  # Σ R_6b, Σ R_6b m (raw) over the block, each sample
+    ("block_rm", np.float64, (3,)),   # with its own R_6b
 ], align=True)
 
 #: The filter's evolving state (one record; see the module docstring for the frames). The

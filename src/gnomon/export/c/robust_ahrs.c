@@ -222,6 +222,8 @@ void gnomon_robust_ahrs_reset(gnomon_robust_ahrs_state *s, const gnomon_robust_a
     zero(s->hard_iron.o, 3);
     zero(s->hard_iron.block_m, 3);
     s->hard_iron.block_mm = R(0.0);
+    zero(s->hard_iron.block_S, 9);
+    zero(s->hard_iron.block_rm, 3);
     zero(s->acc_in_sum, 3);
     zero(s->mag_in_sum, 3);
     s->acc_in_count = 0;
@@ -686,6 +688,14 @@ static bool mag_accumulate(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs
         hi->block_m[1] += my;
         hi->block_m[2] += mz;
         hi->block_mm += mx * mx + my * my + mz * mz;
+        real_t r[3];
+        mat3_vec(Rm, mx, my, mz, r);
+        for (int i = 0; i < 3; ++i) {
+            hi->block_rm[i] += r[i];
+        }
+        for (int i = 0; i < 9; ++i) {
+            hi->block_S[i] += Rm[i];
+        }
         mx -= hi->o[0];
         my -= hi->o[1];
         mz -= hi->o[2];
@@ -699,20 +709,21 @@ static bool mag_accumulate(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs
     return s->mag_count >= c->mag_every || s->k_mag_init == R(1.0);
 }
 
-/* fold the block of cnt samples into the weighted sums, solve for the offset o (body) */
+/* fold the block of cnt samples into the weighted sums (sum R and sum R m summed sample by
+ * sample, each with its own R_6b), solve for the offset o (body) */
 static void hard_iron(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coefficients *c,
-                      const real_t Rm[9], int32_t cnt)
+                      int32_t cnt)
 {
     gnomon_robust_ahrs_hard_iron *hi = &s->hard_iron;
     real_t lam = c->hi_lambda, rc = R(cnt);
-    real_t ro[3];
-    mat3_vec(Rm, hi->o[0], hi->o[1], hi->o[2], ro);
     hi->w = lam * hi->w + rc;
     for (int i = 0; i < 3; ++i) {
         for (int j = 0; j < 3; ++j) {
-            hi->S[3 * i + j] = lam * hi->S[3 * i + j] + rc * Rm[3 * i + j];
+            hi->S[3 * i + j] = lam * hi->S[3 * i + j] + hi->block_S[3 * i + j];
+            hi->block_S[3 * i + j] = R(0.0);
         }
-        hi->rm[i] = lam * hi->rm[i] + s->mag_sum[i] + rc * ro[i];
+        hi->rm[i] = lam * hi->rm[i] + hi->block_rm[i];
+        hi->block_rm[i] = R(0.0);
         hi->m[i] = lam * hi->m[i] + hi->block_m[i];
         hi->block_m[i] = R(0.0);
     }
@@ -867,7 +878,7 @@ static void magnetometer(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_c
     real_t inv = R(1.0) / R(cnt);
     real_t ex = s->mag_sum[0] * inv, ey = s->mag_sum[1] * inv, ez = s->mag_sum[2] * inv;
     if (c->hi_lambda > R(0.0)) {
-        hard_iron(s, c, Rm, cnt);
+        hard_iron(s, c, cnt);
     }
     zero(s->mag_sum, 3);
     s->mag_count = 0;

@@ -186,6 +186,8 @@ typedef struct {
     real_t o[3];        /* the offset in use (body, magnetometer unit; 0: none) */
     real_t block_m[3];  /* sum m, sum |m|^2 over the current block of mag_every */
     real_t block_mm;
+    real_t block_S[9];  /* sum R_6b, sum R_6b m (raw) over the block, each sample with */
+    real_t block_rm[3]; /* its own R_6b */
 } gnomon_robust_ahrs_hard_iron;
 
 /* The state: the kernel's STATE field by field (the same names), then the samples that
