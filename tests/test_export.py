@@ -136,6 +136,31 @@ def test_backend_c_equals_the_python_on_a_log(tmp_path, monkeypatch):
         assert _angle(run_c(name, rec).q, ref).max() < 1e-6
 
 
+def test_backend_c_reports_the_python_signals(recordings, tmp_path, monkeypatch):
+    """The exports that name their signals (``FilterSpec.signals``) return each of the
+    Python ``run``'s: flags equal at every sample, numbers within 1e-9 of theirs."""
+    from gnomon.export.backend import run_c
+
+    monkeypatch.setenv("GNOMON_DATA_DIR", str(tmp_path))
+    named = [n for n in IMU_EXPORTS if SPECS[n].signals]
+    assert "robust-ahrs" in named
+    seen = set()
+    for name in named:
+        for which, rec in recordings.items():
+            ref = gnomon.make_filter(name).run(rec).signals
+            seen |= {(k, bool(v)) for k in ("rest", "mag_disturbed") for v in ref[k]}
+            got = run_c(name, rec).signals
+            assert sorted(got) == sorted(ref), (name, which)
+            for key, want in ref.items():
+                assert got[key].shape == want.shape, (name, which, key)
+                if want.dtype == bool:
+                    assert np.array_equal(got[key], want), (name, which, key)
+                else:
+                    np.testing.assert_allclose(got[key], want, rtol=0, atol=1e-9,
+                                               err_msg=f"{name} {which} {key}")
+    assert len(seen) == 4  # rest and motion, disturbed and clean fields: both compared
+
+
 @pytest.mark.slow(reason="about a minute: full phone and BROAD trials through every C export")
 def test_held_out_trials_match_in_double_and_float(built, full_tyrex, full_broad, tmp_path):
     """Recordings the twins were not written on: full tyrex phone trials (each sensor on

@@ -2,22 +2,27 @@
 
 ``gnomon --help`` and ``gnomon filters`` compile nothing (checked on an empty numba cache:
 no file appears in it); a real compilation is announced once on stderr with its
-measured seconds, a load from memory or the cache says nothing."""
+measured seconds, a load from memory or the cache says nothing. The first ``gnomon
+estimate`` with a C compiler at hand builds the default filter's C export (about a
+second) and compiles no numba kernel; without one it runs the numba kernels."""
 
 from __future__ import annotations
 
 import io
+import json
 import os
+import shutil
 import subprocess
 import sys
 
+import pytest
 from numba import njit
 
 from gnomon.kernels.compile_notice import compile_notice
 
 
-def _gnomon(args, cache_dir):
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
+def _gnomon(args, cache_dir, **env_vars):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir), **env_vars)
     return subprocess.run([sys.executable, "-c", "import sys; from gnomon.cli import main; "
                            "sys.exit(main(sys.argv[1:]))", *args],
                           capture_output=True, text=True, env=env, timeout=300)
@@ -51,3 +56,33 @@ def test_a_compilation_is_announced_once_with_its_seconds():
     with compile_notice(again) as notice:
         twice(4.0)  # compiled already: nothing to say
     assert again.getvalue() == "" and notice.first is None and notice.seconds == 0.0
+
+
+@pytest.mark.skipif(shutil.which("cc") is None or shutil.which("make") is None,
+                    reason="no C compiler (cc) or make: the C backend NOT tested")
+def test_the_first_estimate_builds_the_c_and_compiles_no_kernel(tmp_path):
+    from gnomon.datasets import bundled
+
+    trial = str(sorted(bundled("broad").glob("*.hdf5"))[0])
+    numba_cache, data = tmp_path / "numba", tmp_path / "data"
+    r = _gnomon(["estimate", trial, "--json"], numba_cache, GNOMON_DATA_DIR=str(data))
+    assert r.returncode == 0, r.stderr
+    c = json.loads(r.stdout)
+    assert c["filter"] == "robust-ahrs" and c["backend"] == "c (double)"
+    assert "built robust-ahrs's C" in r.stderr and "compiling" not in r.stderr, r.stderr
+    assert list(numba_cache.rglob("*.nbi")) == []
+    assert list(data.rglob("libgnomon_robust_ahrs_run.so"))
+
+    again = _gnomon(["estimate", trial, "--json"], numba_cache, GNOMON_DATA_DIR=str(data))
+    assert again.returncode == 0 and "built" not in again.stderr, again.stderr
+
+    # no compiler: the numba kernels, the same numbers
+    py = _gnomon(["estimate", trial, "--json"], numba_cache, GNOMON_DATA_DIR=str(data),
+                 CC=str(tmp_path / "no-such-cc"))
+    assert py.returncode == 0, py.stderr
+    p = json.loads(py.stdout)
+    assert p["backend"] == "python"
+    assert list(numba_cache.rglob("*.nbi"))
+    for key in ("total_deg", "heading_deg", "inclination_deg", "max_deg"):
+        assert abs(p["errors"][key] - c["errors"][key]) < 1e-9, key
+    assert p["warnings"] == c["warnings"]

@@ -61,11 +61,15 @@ def add_parser(sub) -> None:
                    help="correct the magnetometer first: a calibration from `gnomon "
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
     add_phone_mag_option(s)
-    s.add_argument("--backend", default="python", choices=["python", "c"],
-                   help="c: run the filter's exported C flight code (gnomon export c), built "
-                        "once into the user cache, to check it on this log")
+    s.add_argument("--backend", default="auto", choices=["auto", "python", "c"],
+                   help="c: the filter's exported C flight code (gnomon export c), built "
+                        "once into the user cache (about a second); python: gnomon's "
+                        "numba kernels (compiled once per machine: robust-ahrs 12-16 s on 2 "
+                        "cores); auto (default): c when the filter's export reports all its "
+                        "signals (robust-ahrs) and a C compiler is found, else python. Both "
+                        "give the same estimate")
     s.add_argument("--precision", default="double", choices=["double", "float"],
-                   help="with --backend c: the C's real_t")
+                   help="when the C runs: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
     add_csv_options(s)
     s.set_defaults(func=run)
@@ -89,13 +93,9 @@ def run(args) -> int:
     params, noise_summary = parse_pairs(args.param), None
     if args.noise:  # gnomon calibrate imu --out: the noise terms as filter parameters
         params, noise_summary = _noise_params(args.noise, args.filter, rec, params)
-    if args.backend == "c":  # the exported C flight code, built once into the cache
-        from gnomon.export.backend import run_c
-
-        est = run_c(args.filter, rec, args.precision, params)
-    else:
-        est = registry.create(args.filter, params).run(rec)
+    est, backend = _run_filter(args, rec, params)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
+               "backend": backend,
                **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,
                "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
@@ -134,9 +134,36 @@ def run(args) -> int:
     return 0
 
 
+def _run_filter(args, rec, params: dict):
+    """The estimate of ``args.filter`` on ``rec`` and the backend that made it (``c
+    (double|float)`` or ``python``): ``--backend`` (``auto``:
+    ``gnomon.export.backend.auto_backend``; a C build that fails then falls back to
+    python, said on stderr)."""
+    from gnomon.estimators import registry
+
+    backend = args.backend
+    if backend == "auto":
+        from gnomon.export.backend import auto_backend
+
+        backend, _ = auto_backend(args.filter)
+    if backend == "c":  # the exported C flight code, built once into the cache
+        from gnomon.export.backend import run_c
+
+        try:
+            return run_c(args.filter, rec, args.precision, params), f"c ({args.precision})"
+        except InputError as e:
+            if args.backend != "auto" or e.field != "make":
+                raise
+            import sys
+
+            print(f"gnomon: the C build failed, running the numba kernels instead "
+                  f"(--backend python skips the C): {e}", file=sys.stderr)
+    return registry.create(args.filter, params).run(rec), "python"
+
+
 def _print_summary(s: dict) -> None:
     """The summary of :func:`run` as text."""
-    print(f"{s['filter']} on {s['input']}: {s['samples']} samples")
+    print(f"{s['filter']} on {s['input']}: {s['samples']} samples ({s['backend']})")
     if "filter_chosen_because" in s:
         print(f"  (default filter: {s['filter_chosen_because']}; --filter NAME to choose)")
     if "mag_calibration" in s:

@@ -20,7 +20,7 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate
 
-__all__ = ["run_c", "build_dir"]
+__all__ = ["auto_backend", "build_dir", "c_compiler_found", "run_c"]
 
 _LIBS: dict = {}
 
@@ -41,6 +41,8 @@ def build_dir(name: str, precision: str, params: dict):
 
 
 def _library(name: str, precision: str, params: dict):
+    """The loaded ``gnomon_run_signals`` of one export and its ``GN_N_SIGNALS``: built
+    (export, ``make shared``) when the cache does not hold it, with a line on stderr."""
     from gnomon.export import SPECS, export_c
     from gnomon.export.cost import make
 
@@ -50,20 +52,54 @@ def _library(name: str, precision: str, params: dict):
     out = build_dir(name, precision, params)
     lib = out / f"libgnomon_{SPECS[name].prefix}_run.so"
     if not lib.exists():
+        import sys
+        import time
+
+        t0 = time.perf_counter()
         export_c(name, out, precision, params)
         make(out, "shared")
+        print(f"gnomon: built {name}'s C ({precision}) for this machine in "
+              f"{time.perf_counter() - t0:.1f} s, once (cached in {out})", file=sys.stderr)
     dll = ctypes.CDLL(str(lib))
-    fn = dll.gnomon_run_rows
+    fn = dll.gnomon_run_signals
     p = ctypes.c_void_p
-    fn.argtypes = [ctypes.c_long, p, p, p, p, p, p, p, ctypes.c_int, p]
+    fn.argtypes = [ctypes.c_long, p, p, p, p, p, p, p, ctypes.c_int, p, p, p]
     fn.restype = ctypes.c_long
-    _LIBS[key] = fn
-    return fn
+    dll.gnomon_n_signals.restype = ctypes.c_int
+    _LIBS[key] = fn, int(dll.gnomon_n_signals())
+    return _LIBS[key]
+
+
+def c_compiler_found() -> bool:
+    """Whether ``make`` and a C compiler (``$CC``, else ``cc``) are on the PATH: what
+    ``run_c`` needs to build an export it has not built yet."""
+    import os
+    import shutil
+
+    return shutil.which("make") is not None and \
+        shutil.which(os.environ.get("CC") or "cc") is not None
+
+
+def auto_backend(name: str) -> tuple[str, str]:
+    """``gnomon estimate --backend auto``: ``("c", why)`` when filter ``name`` has an IMU
+    export that reports all of its Python signals and this machine can build it (a C
+    compiler: built once, about a second, instead of the numba kernels' first
+    compilation: 12-16 s for robust-ahrs on 2 cores), else ``("python", why)``. Both give
+    the same numbers (the twins are held equal sample by sample)."""
+    from gnomon.export import SPECS
+
+    spec = SPECS.get(name)
+    if spec is None or spec.kind != "imu" or not spec.signals:
+        return "python", f"{name} has no C export that reports its signals"
+    if not c_compiler_found():
+        return "python", "no C compiler on the PATH (make and $CC or cc)"
+    return "c", f"{name}'s C export, built with this machine's C compiler"
 
 
 def run_c(name: str, rec, precision: str = "double", params: dict | None = None) -> Estimate:
     """``rec`` through filter ``name``'s exported C (module docstring): an ``Estimate``
-    with ``q`` (N, 4) (no signals: the C returns the attitude)."""
+    with ``q`` (N, 4) and the signals the export reports (``FilterSpec.signals``: for
+    robust-ahrs all of those of its Python ``run``; none for the others)."""
     from gnomon.estimators import registry
     from gnomon.export import SPECS
     if name not in SPECS:
@@ -73,10 +109,14 @@ def run_c(name: str, rec, precision: str = "double", params: dict | None = None)
     p = cls.Params.from_dict(params or {})
     f = cls(p)
     f.check_inputs(rec)
-    if SPECS[name].kind != "imu":
+    spec = SPECS[name]
+    if spec.kind != "imu":
         raise InputError(f"--backend c runs the IMU exports; {name!r} is run by its "
                          f"gnomon_run on `gnomon convert REC rec.csv`", field="--backend")
-    run = _library(name, precision, p.as_dict())
+    run, n_sig = _library(name, precision, p.as_dict())
+    if n_sig != sum(width for _, width, _ in spec.signals):
+        raise RuntimeError(f"{name}'s C reports {n_sig} signals per estimate; its spec names "
+                           f"{spec.signals}")
     from gnomon.io.csv import sample_events
 
     ev = sample_events(rec)  # each sample at its own stamp, as gnomon_run reads a CSV
@@ -84,12 +124,27 @@ def run_c(name: str, rec, precision: str = "double", params: dict | None = None)
     g, a, m = (np.ascontiguousarray(ev[k], dtype=float) for k in ("gyro", "accel", "mag"))
     g_ok, a_ok, m_ok = (np.ascontiguousarray(np.isfinite(x).all(axis=1)) for x in (g, a, m))
     q = np.empty((len(rec), 4))
+    sig = np.empty((len(rec), n_sig))
     ptr = ctypes.c_void_p
     got = run(len(t), ptr(t.ctypes.data), ptr(g.ctypes.data), ptr(a.ctypes.data),
               ptr(g_ok.ctypes.data), ptr(a_ok.ctypes.data), ptr(m.ctypes.data),
-              ptr(m_ok.ctypes.data), int(rec.mag is not None), ptr(q.ctypes.data))
+              ptr(m_ok.ctypes.data), int(rec.mag is not None), None, ptr(q.ctypes.data),
+              ptr(sig.ctypes.data) if n_sig else None)
     if got != len(rec):
         raise InputError(f"the C made {got} estimates for {len(rec)} gyro samples",
                          field="--backend")
     return Estimate(t=rec.t, q=q, estimator=f"{name} (C, {precision})", params=p.as_dict(),
-                    frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"})
+                    frames={"reference": rec.frames.get("reference", "ENU"), "body": "sensor"},
+                    signals=_signals(spec.signals, sig))
+
+
+def _signals(columns, sig: np.ndarray) -> dict:
+    """``gnomon_run_signals``' (N, GN_N_SIGNALS) doubles as named signals (``columns``:
+    ``FilterSpec.signals``): a width-1 column as (N,), a wider one as (N, width)."""
+    out, k = {}, 0
+    for name, width, dtype in columns:
+        x = sig[:, k:k + width]
+        x = x[:, 0] if width == 1 else np.ascontiguousarray(x)
+        out[name] = x != 0.0 if dtype == "bool" else x
+        k += width
+    return out

@@ -25,6 +25,7 @@ Nothing is typed in: every number comes from running the tools on this machine.
 from __future__ import annotations
 
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -38,8 +39,9 @@ __all__ = ["build_and_measure", "bench_recording", "make"]
 def make(out_dir, *targets: str, env_cc: str | None = None) -> str:
     """``make -C out_dir TARGETS``; raises ``InputError`` with the compiler's output when it
     fails. Returns make's output."""
-    if shutil.which("make") is None or shutil.which("cc") is None and env_cc is None:
-        raise InputError("building the C export needs make and a C compiler (cc)",
+    cc = env_cc or os.environ.get("CC") or "cc"
+    if shutil.which("make") is None or shutil.which(cc.split()[0]) is None:
+        raise InputError(f"building the C export needs make and a C compiler ({cc})",
                          field="make")
     cmd = ["make", "-s", "-C", str(out_dir), *targets]
     if env_cc:

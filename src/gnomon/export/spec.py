@@ -16,7 +16,10 @@ class FilterSpec:
     ``runner``: the runner's source (``runner_imu.c`` for the IMU filters); ``adapter``:
     its ``runner_adapter.h``; ``defines``: lines for ``gnomon_config.h``; ``phases``: the
     adapter defines ``GN_ADAPTER_PHASES`` (``gnomon_run --phases``: ns and operations per
-    phase of the step, into ``cost.json``)."""
+    phase of the step, into ``cost.json``); ``signals``: the columns of the adapter's
+    ``gn_adapter_signals`` (``GN_N_SIGNALS``), each (name, width, dtype) in the order of
+    the Python ``Estimate.signals`` (``gnomon estimate --backend c`` returns them; none:
+    the attitude alone)."""
 
     filter: str
     prefix: str
@@ -29,3 +32,4 @@ class FilterSpec:
     values: object = None  # callable(params) -> {c field: value} for computed fields
     kind: str = "imu"
     phases: bool = False
+    signals: tuple[tuple[str, int, str], ...] = ()

@@ -279,13 +279,26 @@ static bool run_row(gn_filter *f, const gn_rows *r, long i, double *t_gyro)
     return true;
 }
 
+/* the signals an adapter reports per estimate besides the attitude (GN_N_SIGNALS doubles,
+ * gn_adapter_signals; gnomon's FilterSpec.signals names them): none by default */
+#ifndef GN_N_SIGNALS
+#define GN_N_SIGNALS 0
+static void gn_adapter_signals(const gn_filter *f, double *out)
+{
+    (void)f;
+    (void)out;
+}
+#endif
+
 /* the whole recording through the filter, for gnomon's Python backend (ctypes; built
  * as a shared library with GN_RUNNER_NO_MAIN): rows as gn_rows holds them (sample events in
  * time order, g_ok/a_ok/m_ok saying which sensors each has); ts (3,) the sensors' nominal
- * sample times or a null pointer (gn_rows.ts); q_out (rows with a gyro sample, 4).
+ * sample times or a null pointer (gn_rows.ts); q_out (rows with a gyro sample, 4);
+ * sig_out (rows with a gyro sample, GN_N_SIGNALS) or a null pointer.
  * Returns the number of estimates. */
-long gnomon_run_rows_ts(long n, double *t, double *g, double *a, bool *g_ok, bool *a_ok,
-                        double *m, bool *m_ok, int has_mag, const double *ts, double *q_out)
+long gnomon_run_signals(long n, double *t, double *g, double *a, bool *g_ok, bool *a_ok,
+                        double *m, bool *m_ok, int has_mag, const double *ts, double *q_out,
+                        double *sig_out)
 {
     gn_rows r;
     for (int k = 0; k < 3; ++k) {
@@ -318,10 +331,26 @@ long gnomon_run_rows_ts(long n, double *t, double *g, double *a, bool *g_ok, boo
             for (int j = 0; j < 4; ++j) {
                 q_out[4 * k + j] = GN_TO_DOUBLE(q[j]);
             }
+            if (sig_out != 0 && GN_N_SIGNALS > 0) {
+                gn_adapter_signals(&f, sig_out + (long)GN_N_SIGNALS * k);
+            }
             ++k;
         }
     }
     return k;
+}
+
+/* GN_N_SIGNALS: the width of gnomon_run_signals' sig_out rows */
+int gnomon_n_signals(void)
+{
+    return GN_N_SIGNALS;
+}
+
+/* gnomon_run_signals without the signals */
+long gnomon_run_rows_ts(long n, double *t, double *g, double *a, bool *g_ok, bool *a_ok,
+                        double *m, bool *m_ok, int has_mag, const double *ts, double *q_out)
+{
+    return gnomon_run_signals(n, t, g, a, g_ok, a_ok, m, m_ok, has_mag, ts, q_out, 0);
 }
 
 /* gnomon_run_rows_ts without nominal sample times (each from the rows) */

@@ -18,4 +18,8 @@ SPECS = (FilterSpec(
             "mag_norm_th", "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
             "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s",
             "mag_reject_factor", "max_dt_s", "mag_soft_norm", "mag_soft_dip_deg",
-            "hard_iron_tau_s", "hard_iron_reg", "hard_iron_gate", "mag_every", "bias_every")),)
+            "hard_iron_tau_s", "hard_iron_reg", "hard_iron_gate", "mag_every", "bias_every"),
+    signals=(("bias_rad_s", 3, "float"), ("bias_at_limit", 1, "bool"), ("rest", 1, "bool"),
+             ("mag_disturbed", 1, "bool"), ("acc_correction_rad_s", 1, "float"),
+             ("mag_gain", 1, "float"), ("hard_iron", 3, "float"), ("acc_skipped", 1, "bool"),
+             ("mag_skipped", 1, "bool"), ("gap", 1, "bool"))),)
