@@ -52,12 +52,19 @@ def _library(name: str, precision: str, params: dict):
     out = build_dir(name, precision, params)
     lib = out / f"libgnomon_{SPECS[name].prefix}_run.so"
     if not lib.exists():
+        import os
+        import shutil
         import sys
         import time
 
         t0 = time.perf_counter()
-        export_c(name, out, precision, params)
-        make(out, "shared")
+        tmp = out.with_name(f"{out.name}.build-{os.getpid()}")  # another process may build
+        export_c(name, tmp, precision, params)                 # the same export now: each
+        make(tmp, "shared")                                    # in its own folder, the
+        try:                                                   # first renamed in place
+            tmp.rename(out)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
         print(f"gnomon: built {name}'s C ({precision}) for this machine in "
               f"{time.perf_counter() - t0:.1f} s, once (cached in {out})", file=sys.stderr)
     dll = ctypes.CDLL(str(lib))
