@@ -360,6 +360,54 @@ def test_no_hard_iron_offset_is_found_on_a_clean_turning_magnetometer():
     assert not est.signals["hard_iron"].any()
 
 
+def _turned_field(n, t, turned_until_s):
+    """ENU field per sample: 1.6x its norm in [40, 45) s (outside the norm bound: flagged),
+    then turned 90 deg about up until ``turned_until_s`` (norm and dip unchanged: inside
+    both bounds), then the field again."""
+    h = np.tile(FIELD, (n, 1))
+    h[(t >= 40) & (t < 45)] *= 1.6
+    turn = (t >= 45) & (t < turned_until_s)
+    h[turn] = FIELD @ np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    return h, turn
+
+
+def test_a_returning_field_turned_away_from_the_heading_stays_rejected():
+    """A disturbance that passes the norm and dip bounds (the field turned 90 deg about the
+    vertical) right after a flagged one is not taken for the field returning
+    (``mag_return_dis_deg``); without that test it pulls the heading towards 90 deg."""
+    n, fs = 9000, 100.0
+    t = np.arange(n) / fs
+    h, turn = _turned_field(n, t, 60.0)
+    rec = wobble(n=n, mag_n=h, seed=3)
+    head = {}
+    for th in (0.0, 60.0):
+        est = RobustAHRS(mag_return_dis_deg=th).run(rec)
+        head[th] = deg(np.abs(broad_errors_rad(rec.q_true, est.q)["heading"]))
+        if th:
+            assert est.signals["mag_disturbed"][turn].all()
+    assert head[60.0][turn].max() < 1.0 and head[60.0][t >= 60].max() < 1.0, head[60.0].max()
+    assert head[0.0][turn].max() > 45.0  # measured 82 deg
+    # the field returning in agreement with the heading: the test changes nothing
+    h2 = np.tile(FIELD, (n, 1))
+    h2[(t >= 40) & (t < 45)] *= 1.6
+    rec2 = wobble(n=n, mag_n=h2, seed=3)
+    q = [RobustAHRS(mag_return_dis_deg=th).run(rec2).q for th in (0.0, 60.0)]
+    np.testing.assert_array_equal(q[0], q[1])
+
+
+def test_a_turned_field_is_taken_after_the_longest_rejection():
+    """The return test holds a field back for at most ``mag_max_reject_s``: a field that
+    stays turned (a new place, or the heading truly that far off) is used after it."""
+    n, fs = 9000, 100.0
+    t = np.arange(n) / fs
+    h, turn = _turned_field(n, t, 90.0)
+    est = RobustAHRS(mag_max_reject_s=10.0).run(wobble(n=n, mag_n=h, seed=3))
+    gain, dist = est.signals["mag_gain"], est.signals["mag_disturbed"]
+    assert dist[(t >= 45) & (t < 50)].all() and gain[(t >= 45) & (t < 50)].max() == 0.0
+    late = (t >= 60) & (t < 90)
+    assert not dist[late].any() and gain[late].min() > 0.0
+
+
 def test_hard_iron_offset_estimated_and_used_only_when_it_fits():
     rec = attached_magnet()
     offset = np.array([25.0, -15.0, 30.0])
