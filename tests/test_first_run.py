@@ -81,7 +81,7 @@ def test_the_first_estimate_builds_the_c_and_compiles_no_kernel(tmp_path):
                  CC=str(tmp_path / "no-such-cc"))
     assert py.returncode == 0, py.stderr
     p = json.loads(py.stdout)
-    assert p["backend"] == "python"
+    assert p["backend"] == "python" and "no C compiler" in p["backend_because"]
     assert list(numba_cache.rglob("*.nbi"))
     for key in ("total_deg", "heading_deg", "inclination_deg", "max_deg"):
         assert abs(p["errors"][key] - c["errors"][key]) < 1e-9, key

@@ -93,9 +93,9 @@ def run(args) -> int:
     params, noise_summary = parse_pairs(args.param), None
     if args.noise:  # gnomon calibrate imu --out: the noise terms as filter parameters
         params, noise_summary = _noise_params(args.noise, args.filter, rec, params)
-    est, backend = _run_filter(args, rec, params)
+    est, backend, why = _run_filter(args, rec, params)
     summary = {"input": str(args.input), "filter": args.filter, "samples": len(rec),
-               "backend": backend,
+               "backend": backend, **({"backend_because": why} if why else {}),
                **({"filter_chosen_because": chosen} if chosen else {}),
                "params": est.params,
                "warnings": _limit_warnings(est, getattr(registry.get(args.filter), "limits",
@@ -135,22 +135,23 @@ def run(args) -> int:
 
 
 def _run_filter(args, rec, params: dict):
-    """The estimate of ``args.filter`` on ``rec`` and the backend that made it (``c
-    (double|float)`` or ``python``): ``--backend`` (``auto``:
-    ``gnomon.export.backend.auto_backend``; a C build that fails then falls back to
-    python, said on stderr)."""
+    """The estimate of ``args.filter`` on ``rec``, the backend that made it (``c
+    (double|float)`` or ``python``) and, for ``--backend auto``, why
+    (``gnomon.export.backend.auto_backend``; a C build that fails then falls back to
+    python, said on stderr; None otherwise)."""
     from gnomon.estimators import registry
 
-    backend = args.backend
+    backend, why = args.backend, None
     if backend == "auto":
         from gnomon.export.backend import auto_backend
 
-        backend, _ = auto_backend(args.filter)
+        backend, why = auto_backend(args.filter)
     if backend == "c":  # the exported C flight code, built once into the cache
         from gnomon.export.backend import run_c
 
         try:
-            return run_c(args.filter, rec, args.precision, params), f"c ({args.precision})"
+            return (run_c(args.filter, rec, args.precision, params), f"c ({args.precision})",
+                    why)
         except InputError as e:
             if args.backend != "auto" or e.field != "make":
                 raise
@@ -158,7 +159,8 @@ def _run_filter(args, rec, params: dict):
 
             print(f"gnomon: the C build failed, running the numba kernels instead "
                   f"(--backend python skips the C): {e}", file=sys.stderr)
-    return registry.create(args.filter, params).run(rec), "python"
+            why = f"the C build failed: {e}"
+    return registry.create(args.filter, params).run(rec), "python", why
 
 
 def _print_summary(s: dict) -> None:
