@@ -152,8 +152,8 @@ def _run_filter(args, rec, params: dict):
         try:
             return (run_c(args.filter, rec, args.precision, params), f"c ({args.precision})",
                     why)
-        except InputError as e:
-            if args.backend != "auto" or e.field != "make":
+        except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
+            if args.backend != "auto" or isinstance(e, InputError) and e.field != "make":
                 raise
             import sys
 
