@@ -5,6 +5,7 @@ samples."""
 
 import dataclasses
 import json
+import shutil
 import socket
 import subprocess
 import sys
@@ -208,15 +209,41 @@ def test_the_line_parser_returns_samples_or_raises_malformed_only(line):
 
 
 # ---------------------------------------------------------------- end to end
+NO_CC = pytest.mark.skipif(shutil.which("cc") is None or shutil.which("make") is None,
+                           reason="no C compiler (cc) or make: the C backend NOT tested")
+
+
 @pytest.mark.slow(reason="3 s (2 cores): streams through the live pipeline in real time")
-def test_replay_through_gnomon_live_equals_gnomon_estimate(tmp_path):
+@pytest.mark.parametrize("backend", [pytest.param("c", marks=NO_CC), "python"])
+def test_replay_through_gnomon_live_equals_gnomon_estimate(tmp_path, backend, capsys):
+    """``gnomon live`` on the C export or on the numba kernels writes what ``gnomon
+    estimate --backend python`` writes, digit for digit."""
     from gnomon.cli import main
 
     est_csv, live_csv = tmp_path / "est.csv", tmp_path / "live.csv"
-    assert main(["estimate", BROAD, "--filter", "robust-ahrs", "--out", est_csv]) == 0
+    assert main(["estimate", BROAD, "--filter", "robust-ahrs", "--backend", "python",
+                 "--out", est_csv]) == 0
+    capsys.readouterr()
     assert main(["live", f"replay://{BROAD}?speed=0", "--filter", "robust-ahrs", "--out",
-                 live_csv]) == 0
+                 live_csv, "--backend", backend, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["backend"] == \
+        ("c (double)" if backend == "c" else "python")
     assert live_csv.read_text() == est_csv.read_text()  # the same columns, the same digits
+
+
+@NO_CC
+def test_the_c_export_streams_sample_by_sample_as_the_filter(broad, multi_rate, tmp_path,
+                                                             monkeypatch):
+    from gnomon.export.backend import c_filter_class
+
+    monkeypatch.setenv("GNOMON_DATA_DIR", str(tmp_path))
+    cls = c_filter_class("robust-ahrs")
+    for rec in (broad, multi_rate):
+        ref = gnomon.make_filter("robust-ahrs").run(rec)
+        live = LiveFilter(cls(gnomon.make_filter("robust-ahrs").params))
+        t, q = _push_all(live, _replay_events(rec))
+        np.testing.assert_array_equal(t, rec.t)
+        assert _angle(q, ref.q).max() < 1e-12
 
 
 def _free_udp_port() -> int:

@@ -29,6 +29,13 @@ def add_parser(sub) -> None:
                    help=f"filter name (default: the first of {', '.join(DEFAULT_ORDER)} "
                         "that runs on the stream's sensors, decided on its first samples)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
+    s.add_argument("--backend", default="auto", choices=["auto", "python", "c"],
+                   help="c: the filter's exported C flight code, built once into the user "
+                        "cache (about a second), in this process; python: gnomon's numba "
+                        "kernels (compiled once per machine: robust-ahrs 12-16 s on 2 cores, "
+                        "while the first samples wait); auto (default): c for the filters "
+                        "whose export streams (robust-ahrs) when a C compiler is found. Both "
+                        "give the same estimates")
     s.add_argument("--out", help="write the estimates (.csv or .h5; the columns of `gnomon "
                                  "estimate --out`)")
     s.add_argument("--udp-out", metavar="HOST:PORT",
@@ -107,7 +114,26 @@ def _filter(args, source):
         raise InputError(f"{name!r} cannot run live: live filters are the causal IMU ones "
                          f"({', '.join(n for n in registry.names('imu', offline=False))})",
                          field="--filter")
-    return filt
+    return _backend(args, name, filt)
+
+
+def _backend(args, name, filt):
+    """``filt`` or, by ``--backend`` (``auto``: ``gnomon.export.backend.auto_backend``),
+    its exported C as a streaming filter (``c_filter_class``); under ``auto`` a C build
+    that fails leaves ``filt``, said on stderr."""
+    from gnomon.export.backend import auto_backend, c_filter_class
+
+    backend = auto_backend(name)[0] if args.backend == "auto" else args.backend
+    if backend != "c":
+        return filt
+    try:
+        return c_filter_class(name)(filt.params)
+    except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
+        if args.backend != "auto" or isinstance(e, InputError) and e.field != "make":
+            raise
+        print(f"gnomon: the C build failed, running the numba kernels instead "
+              f"(--backend python skips the C): {e}", file=sys.stderr)
+        return filt
 
 
 def _mapped(args, given) -> tuple:
@@ -154,7 +180,8 @@ def run(args) -> int:
             for line in getattr(source, "assumed", ()):
                 print(f"  assumed: {line}", file=sys.stderr)
             views = [sink.url for sink in sinks if hasattr(sink, "url")]
-            print(f"gnomon live: {filt.name} on {args.source}"
+            print(f"gnomon live: {filt.name} ({getattr(filt, 'backend', 'python')}) "
+                  f"on {args.source}"
                   + "".join(f"; view at {url}" for url in views) + " (Ctrl-C to stop)",
                   file=sys.stderr)
         try:
@@ -172,6 +199,7 @@ def run(args) -> int:
         raise
     summary = run_.to_dict()
     summary["assumed"] = list(getattr(source, "assumed", ()))
+    summary["backend"] = getattr(filt, "backend", "python")
     if args.json:
         print_json(summary)
         return 0

@@ -20,7 +20,7 @@ import numpy as np
 from gnomon.errors import InputError
 from gnomon.estimators.base import Estimate
 
-__all__ = ["auto_backend", "build_dir", "c_compiler_found", "run_c"]
+__all__ = ["auto_backend", "build_dir", "c_compiler_found", "c_filter_class", "run_c"]
 
 _LIBS: dict = {}
 
@@ -41,8 +41,9 @@ def build_dir(name: str, precision: str, params: dict):
 
 
 def _library(name: str, precision: str, params: dict):
-    """The loaded ``gnomon_run_signals`` of one export and its ``GN_N_SIGNALS``: built
-    (export, ``make shared``) when the cache does not hold it, with a line on stderr."""
+    """One export's runner library (``ctypes.CDLL``: ``gnomon_run_signals``, the streaming
+    ``gnomon_filter_*``) and its ``GN_N_SIGNALS``: built (export, ``make shared``) when the
+    cache does not hold it, with a line on stderr."""
     from gnomon.export import SPECS, export_c
     from gnomon.export.cost import make
 
@@ -68,12 +69,16 @@ def _library(name: str, precision: str, params: dict):
         print(f"gnomon: built {name}'s C ({precision}) for this machine in "
               f"{time.perf_counter() - t0:.1f} s, once (cached in {out})", file=sys.stderr)
     dll = ctypes.CDLL(str(lib))
-    fn = dll.gnomon_run_signals
     p = ctypes.c_void_p
-    fn.argtypes = [ctypes.c_long, p, p, p, p, p, p, p, ctypes.c_int, p, p, p]
-    fn.restype = ctypes.c_long
+    dll.gnomon_run_signals.argtypes = [ctypes.c_long, p, p, p, p, p, p, p, ctypes.c_int, p, p, p]
+    dll.gnomon_run_signals.restype = ctypes.c_long
     dll.gnomon_n_signals.restype = ctypes.c_int
-    _LIBS[key] = fn, int(dll.gnomon_n_signals())
+    dll.gnomon_filter_size.restype = ctypes.c_long
+    dll.gnomon_filter_start.argtypes = [p, ctypes.c_double, ctypes.c_double, ctypes.c_double]
+    dll.gnomon_filter_start.restype = None
+    dll.gnomon_filter_rows.argtypes = [p, ctypes.c_long, p, p, p, p, p, p]
+    dll.gnomon_filter_rows.restype = None
+    _LIBS[key] = dll, int(dll.gnomon_n_signals())
     return _LIBS[key]
 
 
@@ -120,7 +125,8 @@ def run_c(name: str, rec, precision: str = "double", params: dict | None = None)
     if spec.kind != "imu":
         raise InputError(f"--backend c runs the IMU exports; {name!r} is run by its "
                          f"gnomon_run on `gnomon convert REC rec.csv`", field="--backend")
-    run, n_sig = _library(name, precision, p.as_dict())
+    dll, n_sig = _library(name, precision, p.as_dict())
+    run = dll.gnomon_run_signals
     if n_sig != sum(width for _, width, _ in spec.signals):
         raise RuntimeError(f"{name}'s C reports {n_sig} signals per estimate; its spec names "
                            f"{spec.signals}")
@@ -155,3 +161,81 @@ def _signals(columns, sig: np.ndarray) -> dict:
         out[name] = x != 0.0 if dtype == "bool" else x
         k += width
     return out
+
+
+def c_filter_class(name: str, precision: str = "double"):
+    """The exported C of filter ``name`` as a streaming filter class: what ``gnomon live``
+    (``gnomon.live.LiveFilter``) calls on a filter, ``Cls(params)``, ``check_inputs(rec)``,
+    ``prepare(rec)`` and ``update_many(dt_s, gyro, accel, mag, t_s=...)`` (an ``Estimate``
+    with the signals of the Python filter's), run by the C in this process's memory
+    (``gnomon_filter_start`` / ``gnomon_filter_rows`` of the runner library: built once,
+    about a second, where the numba kernels compile for 12-16 s). For the exports that name
+    their signals (``FilterSpec.signals``: their start needs only the nominal sample
+    times); the numbers equal the Python filter's (``tests/test_export.py``)."""
+    from gnomon.estimators import registry
+    from gnomon.export import SPECS
+
+    spec = SPECS.get(name)
+    if spec is None or spec.kind != "imu" or not spec.signals:
+        raise InputError(f"no streaming C export of {name!r}; those with one: "
+                         f"{', '.join(sorted(n for n, s in SPECS.items() if s.signals))}",
+                         field="--backend")
+    py = registry.get(name)
+
+    class CFilter:
+        __doc__ = f"{name}'s exported C ({precision}) as a streaming filter (c_filter_class)."
+        Params = py.Params
+        kind = "imu"
+        offline = False
+        backend = f"c ({precision})"  # what `gnomon live` says it runs
+
+        def __init__(self, params=None, **kw):
+            if params is None or isinstance(params, dict):
+                params = py.Params.from_dict({**(params or {}), **kw})
+            self.params = params
+            self.name = name
+            self._py = py(params)  # the input checks and the nominal sample times
+            self._dll, self._n_sig = _library(name, precision, params.as_dict())
+            self._mem = ctypes.create_string_buffer(int(self._dll.gnomon_filter_size()))
+            self._started = False
+
+        def check_inputs(self, rec) -> None:
+            self._py.check_inputs(rec)
+
+        def prepare(self, rec) -> None:
+            """The nominal sample times from ``rec``, as the Python filter's ``prepare``."""
+            self._py.prepare(rec)
+            self._start(*self._py.ts)
+
+        def _start(self, ts, ts_acc, ts_mag) -> None:
+            self._dll.gnomon_filter_start(ctypes.addressof(self._mem), ts, ts_acc, ts_mag)
+            self._started = True
+
+        def update_many(self, dt_s, gyro_rad_s, accel_m_s2=None, mag_uT=None, *,
+                        t_s=None) -> Estimate:
+            """N rows through the C, as the Python filter's ``update_many`` (the same checks;
+            without ``prepare`` the first ``dt_s`` is the nominal sample time)."""
+            from gnomon.estimators.base import imu_buffer
+
+            dt, gyro, acc, mag = (np.ascontiguousarray(x) for x in
+                                  imu_buffer(dt_s, gyro_rad_s, accel_m_s2, mag_uT))
+            n = len(dt)
+            if not self._started and n:
+                if not dt[0] > 0:
+                    raise InputError("call prepare(rec) first or pass dt_s > 0", field="dt_s")
+                self._start(float(dt[0]), float(dt[0]), float(dt[0]))
+            q = np.empty((n, 4))
+            sig = np.empty((n, self._n_sig))
+            ptr = ctypes.c_void_p
+            self._dll.gnomon_filter_rows(ctypes.addressof(self._mem), n, ptr(dt.ctypes.data),
+                                         ptr(gyro.ctypes.data), ptr(acc.ctypes.data),
+                                         ptr(mag.ctypes.data), ptr(q.ctypes.data),
+                                         ptr(sig.ctypes.data) if self._n_sig else None)
+            return Estimate(t=np.cumsum(dt) if t_s is None else np.asarray(t_s, dtype=float),
+                            q=q, estimator=f"{name} (C, {precision})",
+                            params=self.params.as_dict(),
+                            frames={"reference": "ENU", "body": "sensor"},
+                            signals=_signals(spec.signals, sig))
+
+    CFilter.__name__ = CFilter.__qualname__ = f"C_{spec.prefix}"
+    return CFilter

@@ -346,6 +346,55 @@ int gnomon_n_signals(void)
     return GN_N_SIGNALS;
 }
 
+/* streaming from Python (gnomon.export.backend.c_filter_class, `gnomon live`): the
+ * filter in the caller's memory (gnomon_filter_size bytes), started with the sensors'
+ * nominal sample times (s; the adapters whose start needs only those: the ones that name
+ * their signals), then any number of calls of gnomon_filter_rows */
+long gnomon_filter_size(void)
+{
+    return (long)sizeof(gn_filter);
+}
+
+void gnomon_filter_start(gn_filter *f, double ts_gyro, double ts_acc, double ts_mag)
+{
+    gn_rows r;
+    memset(&r, 0, sizeof r);
+    r.ts[0] = ts_gyro;
+    r.ts[1] = ts_acc;
+    r.ts[2] = ts_mag;
+    r.has_mag = true;
+    r.t0 = 0.0;
+    gn_runner_start(f, &r);
+}
+
+/* n rows through the filter: dt (n,) s since the previous row, g (n,3) rad/s, a (n,3)
+ * m/s^2 and m (n,3) uT or null pointers (a non-finite row: no sample of that sensor);
+ * q_out (n,4), sig_out (n, GN_N_SIGNALS) or a null pointer */
+void gnomon_filter_rows(gn_filter *f, long n, const double *dt, const double *g,
+                        const double *a, const double *m, double *q_out, double *sig_out)
+{
+    real_t v[3], q[4];
+    for (long i = 0; i < n; ++i) {
+        if (a != 0) {
+            to_real(a + 3 * i, v);
+            gn_adapter_acc(f, v);
+        }
+        if (m != 0) {
+            to_real(m + 3 * i, v);
+            gn_adapter_mag(f, v);
+        }
+        to_real(g + 3 * i, v);
+        gn_adapter_gyro(f, R(dt[i]), v);
+        gn_adapter_quat(f, q);
+        for (int j = 0; j < 4; ++j) {
+            q_out[4 * i + j] = GN_TO_DOUBLE(q[j]);
+        }
+        if (sig_out != 0 && GN_N_SIGNALS > 0) {
+            gn_adapter_signals(f, sig_out + (long)GN_N_SIGNALS * i);
+        }
+    }
+}
+
 /* gnomon_run_signals without the signals */
 long gnomon_run_rows_ts(long n, double *t, double *g, double *a, bool *g_ok, bool *a_ok,
                         double *m, bool *m_ok, int has_mag, const double *ts, double *q_out)
