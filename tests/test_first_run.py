@@ -58,6 +58,8 @@ def test_a_compilation_is_announced_once_with_its_seconds():
     assert again.getvalue() == "" and notice.first is None and notice.seconds == 0.0
 
 
+@pytest.mark.slow(reason="20-30 s (2 cores): three new processes, one compiles robust-ahrs "
+                         "on an empty numba cache")
 @pytest.mark.skipif(shutil.which("cc") is None or shutil.which("make") is None,
                     reason="no C compiler (cc) or make: the C backend NOT tested")
 def test_the_first_estimate_builds_the_c_and_compiles_no_kernel(tmp_path):
