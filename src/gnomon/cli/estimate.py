@@ -66,8 +66,8 @@ def add_parser(sub) -> None:
                         "once into the user cache (about a second); python: gnomon's "
                         "numba kernels (compiled once per machine: robust-ahrs 12-16 s on 2 "
                         "cores); auto (default): c when the filter's export reports all its "
-                        "signals (robust-ahrs) and a C compiler is found, else python. Both "
-                        "give the same estimate")
+                        "signals (robust-ahrs, mahony) and a C compiler is found, else "
+                        "python. Both give the same estimate")
     s.add_argument("--precision", default="double", choices=["double", "float"],
                    help="when the C runs: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")

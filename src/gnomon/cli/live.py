@@ -123,7 +123,7 @@ def _backend(args, name, filt):
     that fails leaves ``filt``, said on stderr."""
     from gnomon.export.backend import auto_backend, c_filter_class
 
-    backend = auto_backend(name)[0] if args.backend == "auto" else args.backend
+    backend = auto_backend(name, streaming=True)[0] if args.backend == "auto" else args.backend
     if backend != "c":
         return filt
     try:

@@ -92,17 +92,21 @@ def c_compiler_found() -> bool:
         shutil.which(os.environ.get("CC") or "cc") is not None
 
 
-def auto_backend(name: str) -> tuple[str, str]:
-    """``gnomon estimate --backend auto``: ``("c", why)`` when filter ``name`` has an IMU
-    export that reports all of its Python signals and this machine can build it (a C
-    compiler: built once, about a second, instead of the numba kernels' first
-    compilation: 12-16 s for robust-ahrs on 2 cores), else ``("python", why)``. Both give
-    the same numbers (the twins are held equal sample by sample)."""
+def auto_backend(name: str, streaming: bool = False) -> tuple[str, str]:
+    """``--backend auto`` of ``gnomon estimate`` (``streaming`` False) and ``gnomon live``
+    (True): ``("c", why)`` when filter ``name`` has an IMU export that reports all of its
+    Python signals (and, streaming, starts without rows: ``FilterSpec.streams``) and this
+    machine can build it (a C compiler: built once, about a second, instead of the numba
+    kernels' first compilation: 12-16 s for robust-ahrs, 35 s for mahony, on 2 cores), else
+    ``("python", why)``. Both give the same numbers (the twins are held equal sample by
+    sample)."""
     from gnomon.export import SPECS
 
     spec = SPECS.get(name)
     if spec is None or spec.kind != "imu" or not spec.signals:
         return "python", f"{name} has no C export that reports its signals"
+    if streaming and not spec.streams:
+        return "python", f"{name}'s C export starts from a recording's first rows, not a stream"
     if not c_compiler_found():
         return "python", "no C compiler on the PATH (make and $CC or cc)"
     return "c", f"{name}'s C export, built with this machine's C compiler"
@@ -170,15 +174,16 @@ def c_filter_class(name: str, precision: str = "double"):
     with the signals of the Python filter's), run by the C in this process's memory
     (``gnomon_filter_start`` / ``gnomon_filter_rows`` of the runner library: built once,
     about a second, where the numba kernels compile for 12-16 s). For the exports that name
-    their signals (``FilterSpec.signals``: their start needs only the nominal sample
-    times); the numbers equal the Python filter's (``tests/test_export.py``)."""
+    their signals and start from the nominal sample times alone (``FilterSpec.signals``,
+    ``FilterSpec.streams``); the numbers equal the Python filter's
+    (``tests/test_export.py``, ``tests/test_live.py``)."""
     from gnomon.estimators import registry
     from gnomon.export import SPECS
 
     spec = SPECS.get(name)
-    if spec is None or spec.kind != "imu" or not spec.signals:
+    if spec is None or spec.kind != "imu" or not spec.signals or not spec.streams:
         raise InputError(f"no streaming C export of {name!r}; those with one: "
-                         f"{', '.join(sorted(n for n, s in SPECS.items() if s.signals))}",
+                         f"{', '.join(sorted(n for n, s in SPECS.items() if s.streams))}",
                          field="--backend")
     py = registry.get(name)
 

@@ -19,7 +19,9 @@ class FilterSpec:
     phase of the step, into ``cost.json``); ``signals``: the columns of the adapter's
     ``gn_adapter_signals`` (``GN_N_SIGNALS``), each (name, width, dtype) in the order of
     the Python ``Estimate.signals`` (``gnomon estimate --backend c`` returns them; none:
-    the attitude alone)."""
+    the attitude alone); ``streams``: its adapter starts from the nominal sample times
+    alone (no rows), so it runs as a streaming filter from Python
+    (``gnomon.export.backend.c_filter_class``, ``gnomon live``)."""
 
     filter: str
     prefix: str
@@ -33,3 +35,4 @@ class FilterSpec:
     kind: str = "imu"
     phases: bool = False
     signals: tuple[tuple[str, int, str], ...] = ()
+    streams: bool = False

@@ -23,4 +23,5 @@ SPECS = (FilterSpec(
     signals=(("bias_rad_s", 3, "float"), ("bias_at_limit", 1, "bool"), ("rest", 1, "bool"),
              ("mag_disturbed", 1, "bool"), ("acc_correction_rad_s", 1, "float"),
              ("mag_gain", 1, "float"), ("hard_iron", 3, "float"), ("acc_skipped", 1, "bool"),
-             ("mag_skipped", 1, "bool"), ("gap", 1, "bool"))),)
+             ("mag_skipped", 1, "bool"), ("gap", 1, "bool")),
+    streams=True),)
