@@ -184,3 +184,25 @@ def add_phone_mag_option(s) -> None:
                         "(the reader's default) or the raw one (the default of calibrate mag "
                         "and of estimate --mag-calibration: a calibration corrects the raw "
                         "one)")
+
+
+def add_backend_option(s, which: str) -> None:
+    """``--backend auto|python|c`` of ``estimate`` and ``live``; ``which``: the filters
+    whose export ``auto`` runs on the C in that command."""
+    s.add_argument("--backend", default="auto", choices=["auto", "python", "c"],
+                   help="c: the filter's exported C flight code (gnomon export c), built "
+                        "once into the user cache (about a second); python: gnomon's numba "
+                        "kernels (compiled once per machine: robust-ahrs 12-16 s on 2 "
+                        f"cores); auto (default): c for {which} when a C compiler is found, "
+                        "else python. Both give the same estimates")
+
+
+def fall_back_from_c(requested: str, err: Exception) -> bool:
+    """Whether a C build error ``err`` (an ``InputError`` of ``make``, or an ``OSError``:
+    an unwritable cache) leaves the command to the numba kernels: only under ``--backend
+    auto`` (``requested``), said on stderr. Any other error is the caller's to raise."""
+    if requested != "auto" or isinstance(err, InputError) and err.field != "make":
+        return False
+    print(f"gnomon: the C build failed, running the numba kernels instead "
+          f"(--backend python skips the C): {err}", file=sys.stderr)
+    return True

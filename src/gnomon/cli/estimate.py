@@ -6,10 +6,12 @@ from __future__ import annotations
 import math
 
 from gnomon.cli.common import (
+    add_backend_option,
     add_csv_options,
     add_format_option,
     add_log_options,
     add_phone_mag_option,
+    fall_back_from_c,
     parse_pairs,
     print_json,
     raw_phone_mag,
@@ -61,13 +63,8 @@ def add_parser(sub) -> None:
                    help="correct the magnetometer first: a calibration from `gnomon "
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
     add_phone_mag_option(s)
-    s.add_argument("--backend", default="auto", choices=["auto", "python", "c"],
-                   help="c: the filter's exported C flight code (gnomon export c), built "
-                        "once into the user cache (about a second); python: gnomon's "
-                        "numba kernels (compiled once per machine: robust-ahrs 12-16 s on 2 "
-                        "cores); auto (default): c when the filter's export reports all its "
-                        "signals (robust-ahrs, mahony) and a C compiler is found, else "
-                        "python. Both give the same estimate")
+    add_backend_option(s, "the filters whose export reports all their signals (robust-ahrs, "
+                          "mahony)")
     s.add_argument("--precision", default="double", choices=["double", "float"],
                    help="when the C runs: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -153,12 +150,8 @@ def _run_filter(args, rec, params: dict):
             return (run_c(args.filter, rec, args.precision, params), f"c ({args.precision})",
                     why)
         except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
-            if args.backend != "auto" or isinstance(e, InputError) and e.field != "make":
+            if not fall_back_from_c(args.backend, e):
                 raise
-            import sys
-
-            print(f"gnomon: the C build failed, running the numba kernels instead "
-                  f"(--backend python skips the C): {e}", file=sys.stderr)
             why = f"the C build failed: {e}"
     return registry.create(args.filter, params).run(rec), "python", why
 

@@ -7,7 +7,13 @@ import signal
 import sys
 import threading
 
-from gnomon.cli.common import add_csv_options, parse_pairs, print_json
+from gnomon.cli.common import (
+    add_backend_option,
+    add_csv_options,
+    fall_back_from_c,
+    parse_pairs,
+    print_json,
+)
 from gnomon.errors import InputError
 
 
@@ -29,13 +35,8 @@ def add_parser(sub) -> None:
                    help=f"filter name (default: the first of {', '.join(DEFAULT_ORDER)} "
                         "that runs on the stream's sensors, decided on its first samples)")
     s.add_argument("--param", action="append", metavar="KEY=VALUE", help="filter parameter")
-    s.add_argument("--backend", default="auto", choices=["auto", "python", "c"],
-                   help="c: the filter's exported C flight code, built once into the user "
-                        "cache (about a second), in this process; python: gnomon's numba "
-                        "kernels (compiled once per machine: robust-ahrs 12-16 s on 2 cores, "
-                        "while the first samples wait); auto (default): c for the filters "
-                        "whose export streams (robust-ahrs) when a C compiler is found. Both "
-                        "give the same estimates")
+    add_backend_option(s, "the filters whose export streams (robust-ahrs), run in this "
+                          "process")
     s.add_argument("--out", help="write the estimates (.csv or .h5; the columns of `gnomon "
                                  "estimate --out`)")
     s.add_argument("--udp-out", metavar="HOST:PORT",
@@ -129,10 +130,8 @@ def _backend(args, name, filt):
     try:
         return c_filter_class(name)(filt.params)
     except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
-        if args.backend != "auto" or isinstance(e, InputError) and e.field != "make":
+        if not fall_back_from_c(args.backend, e):
             raise
-        print(f"gnomon: the C build failed, running the numba kernels instead "
-              f"(--backend python skips the C): {e}", file=sys.stderr)
         return filt
 
 
