@@ -181,3 +181,22 @@ def test_gnomon_report_rebuilds_a_reproduction(tmp_path, capsys):
     assert main(["report", tmp_path]) == 0
     assert "p004/drift.png" in (tmp_path / "p004.html").read_text()
     assert "wrote" in capsys.readouterr().out
+
+
+@pytest.mark.slow(reason="25 s (2 cores): reproduces paper 004 twice, once in a new process")
+def test_reproduce_all_side_by_side_equals_one_after_the_other(tmp_path, monkeypatch):
+    """``run_all(jobs=2)``: each paper in its own process gives the numbers of the same
+    paper run here; a paper that fails there is recorded with its error and the others
+    still run; ``--workers 0`` is refused."""
+    import gnomon.reproduce as reproduce
+    from gnomon.cli import main
+
+    alone = reproduce.run("004", tmp_path / "alone", quick=True)
+    monkeypatch.setattr(reproduce, "available", lambda: ["004", "999"])
+    res = reproduce.run_all(tmp_path / "both", quick=True, jobs=2)
+    assert list(res) == ["004", "999"]
+    assert "no reproduction for paper '999'" in res["999"]["error"]
+    assert json.dumps(res["004"], default=float, sort_keys=True) == \
+        json.dumps(alone, default=float, sort_keys=True)
+    assert (tmp_path / "both" / "p004" / "metrics.json").is_file()
+    assert main(["reproduce", "all", "--quick", "--workers", "0"]) == 2

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from gnomon.cli.common import add_quiet_option, print_json, progress_wanted
+from gnomon.errors import InputError
 
 
 def add_parser(sub) -> None:
@@ -18,6 +19,11 @@ def add_parser(sub) -> None:
     s.add_argument("--out", help="directory for figures, metrics.json (and the HTML report)")
     s.add_argument("--quick", action="store_true", help="short version (for CI)")
     s.add_argument("--json", action="store_true", help="print the result as JSON only")
+    s.add_argument("--workers", type=int, default=1,
+                   help="with 'all': papers reproduced side by side, each in its own "
+                        "process (default 1: one after the other, with each paper's "
+                        "progress; the speeds the papers measure are then not shared "
+                        "with another paper's work)")
     add_quiet_option(s)
     s.set_defaults(func=run)
 
@@ -27,8 +33,11 @@ def run(args) -> int:
     from gnomon import reproduce
 
     out = Path(args.out) if args.out else None
+    if args.workers < 1:
+        raise InputError(f"must be >= 1, got {args.workers}", field="--workers")
     if args.paper == "all":
-        res = reproduce.run_all(out_dir=out, quick=args.quick, progress=progress_wanted(args))
+        res = reproduce.run_all(out_dir=out, quick=args.quick, progress=progress_wanted(args),
+                                jobs=args.workers)
     else:
         res = reproduce.run(args.paper, out_dir=out, quick=args.quick,
                             progress=progress_wanted(args))
