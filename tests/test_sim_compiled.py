@@ -147,8 +147,9 @@ def test_noise_and_bias_statistics(order):
     40 runs x 2001 samples at rest: 240,000 draws per noise, so each std is known to
     0.15 %; tolerances 1.5 %. The walk's variance across runs at t = 20 s has a relative
     standard error of sqrt(2/40) = 22 %; tolerance 60 % (and the increments' std 1.5 %).
-    A correlation of 240,000 independent pairs has a standard error of 0.002: at most
-    0.01 (5 sigma) between two sensors' noise on one axis and from one sample to the next.
+    A correlation of 80,000 independent pairs (40 runs x 2,000 samples, one axis) has a
+    standard error of 0.0035: at most 0.02 (5.7 sigma) between two sensors' noise of one
+    sample and from one sample to the next (a draw reused or misplaced gives far more).
     """
     p = AhrsSimParams(duration_s=20.0, rate_rms=0.0, gyro_bias_std=0.01, bias_rw=2e-4,
                       gyro_noise=3e-3, accel_noise=0.05, mag_noise_uT=0.4)
@@ -180,9 +181,9 @@ def test_noise_and_bias_statistics(order):
     for a in range(4):
         for b in range(a + 1, 4):     # bias step, gyro, accelerometer, magnetometer: x axis
             assert abs(np.corrcoef(noise[a][..., 0].ravel(), noise[b][..., 0].ravel())[0, 1]) \
-                < 0.01, (a, b)
+                < 0.02, (a, b)
         lag = np.corrcoef(noise[a][:, 1:, 2].ravel(), noise[a][:, :-1, 2].ravel())[0, 1]
-        assert abs(lag) < 0.01, a
+        assert abs(lag) < 0.02, a
 
 
 def test_draws_by_sample_are_numpy_normals_in_rows_of_twelve():
