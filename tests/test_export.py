@@ -143,7 +143,7 @@ def test_backend_c_reports_the_python_signals(recordings, tmp_path, monkeypatch)
 
     monkeypatch.setenv("GNOMON_DATA_DIR", str(tmp_path))
     named = [n for n in IMU_EXPORTS if SPECS[n].signals]
-    assert {"robust-ahrs", "mahony"} <= set(named)
+    assert {"robust-ahrs", "mahony", "tilt-cf"} <= set(named)
     seen = set()
     for name in named:
         for which, rec in recordings.items():
@@ -180,3 +180,32 @@ def test_held_out_trials_match_in_double_and_float(built, full_tyrex, full_broad
             _, q = _run(built[name, "float"], rec, tmp_path)
             rms = np.degrees(np.sqrt(np.mean(_angle(q, ref) ** 2)))
             assert rms < 0.05, (path.name, name, rms)
+
+
+def test_auto_backend_leaves_parameters_the_c_does_not_take_to_python(tmp_path, monkeypatch,
+                                                                       capsys):
+    """tilt-cf's C has no speed compensation: under ``--backend auto`` the estimate runs the
+    numba kernels and says why (stderr and ``backend_because``); ``--backend c`` refuses it
+    naming the parameter. Without the parameter, auto runs the C with its signals."""
+    import argparse
+    import dataclasses
+
+    from gnomon.cli.estimate import _run_filter
+    from gnomon.errors import InputError
+    from gnomon.simulation.ahrs import AhrsSimParams, simulate_ahrs
+
+    monkeypatch.setenv("GNOMON_DATA_DIR", str(tmp_path))
+    rec = simulate_ahrs(AhrsSimParams(duration_s=5.0), np.random.default_rng(3))
+    rec = dataclasses.replace(rec, extra={**rec.extra, "speed_m_s": np.zeros(len(rec))})
+    args = argparse.Namespace(filter="tilt-cf", backend="auto", precision="double")
+    est, backend, why = _run_filter(args, rec, {"speed_compensation": True})
+    assert backend == "python" and "does not take these parameters" in why, why
+    assert "running the numba kernels instead" in capsys.readouterr().err
+    ref = gnomon.make_filter("tilt-cf").run(rec)     # speed 0: nothing to compensate
+    assert _angle(est.q, ref.q).max() < 1e-9
+    with pytest.raises(InputError, match="speed compensation") as err:
+        _run_filter(argparse.Namespace(filter="tilt-cf", backend="c", precision="double"),
+                    rec, {"speed_compensation": True})
+    assert err.value.field == "--param"
+    est, backend, _ = _run_filter(args, rec, {})
+    assert backend == "c (double)" and set(est.signals) == {"acc_rejected", "bias_rad_s"}

@@ -197,12 +197,25 @@ def add_backend_option(s, which: str) -> None:
                         "else python. Both give the same estimates")
 
 
+def c_failure(err: Exception) -> str | None:
+    """What an error of the C path ``err`` means, or None for an error of the command's own:
+    ``make`` failed or the cache is unwritable (an ``OSError``): the build; the export
+    refuses a parameter (``--param``: tilt-cf's speed compensation, which the C does not
+    do): the parameters."""
+    if isinstance(err, OSError) or isinstance(err, InputError) and err.field == "make":
+        return "the C build failed"
+    if isinstance(err, InputError) and err.field == "--param":
+        return "the C export does not take these parameters"
+    return None
+
+
 def fall_back_from_c(requested: str, err: Exception) -> bool:
-    """Whether a C build error ``err`` (an ``InputError`` of ``make``, or an ``OSError``:
-    an unwritable cache) leaves the command to the numba kernels: only under ``--backend
+    """Whether an error of the C path ``err`` (:func:`c_failure`: the build, or a parameter
+    the export refuses) leaves the command to the numba kernels: only under ``--backend
     auto`` (``requested``), said on stderr. Any other error is the caller's to raise."""
-    if requested != "auto" or isinstance(err, InputError) and err.field != "make":
+    what = c_failure(err)
+    if requested != "auto" or what is None:
         return False
-    print(f"gnomon: the C build failed, running the numba kernels instead "
+    print(f"gnomon: {what}, running the numba kernels instead "
           f"(--backend python skips the C): {err}", file=sys.stderr)
     return True

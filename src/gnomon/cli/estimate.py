@@ -11,6 +11,7 @@ from gnomon.cli.common import (
     add_format_option,
     add_log_options,
     add_phone_mag_option,
+    c_failure,
     fall_back_from_c,
     parse_pairs,
     print_json,
@@ -64,7 +65,7 @@ def add_parser(sub) -> None:
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
     add_phone_mag_option(s)
     add_backend_option(s, "the filters whose export reports all their signals (robust-ahrs, "
-                          "mahony)")
+                          "mahony, tilt-cf)")
     s.add_argument("--precision", default="double", choices=["double", "float"],
                    help="when the C runs: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -149,10 +150,10 @@ def _run_filter(args, rec, params: dict):
         try:
             return (run_c(args.filter, rec, args.precision, params), f"c ({args.precision})",
                     why)
-        except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
+        except (InputError, OSError) as e:  # the build, or a parameter the C does not take
             if not fall_back_from_c(args.backend, e):
                 raise
-            why = f"the C build failed: {e}"
+            why = f"{c_failure(e)}: {e}"
     return registry.create(args.filter, params).run(rec), "python", why
 
 

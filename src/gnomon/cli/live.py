@@ -129,7 +129,7 @@ def _backend(args, name, filt):
         return filt
     try:
         return c_filter_class(name)(filt.params)
-    except (InputError, OSError) as e:  # the build (make, or an unwritable cache)
+    except (InputError, OSError) as e:  # the build, or a parameter the C does not take
         if not fall_back_from_c(args.backend, e):
             raise
         return filt

@@ -11,6 +11,7 @@
 typedef struct {
     gnomon_tilt_cf_state s;
     gnomon_tilt_cf_params p;
+    int flags;  /* the last update_gyro's */
 } gn_filter;
 
 static void gn_runner_start(gn_filter *f, const gn_rows *r)
@@ -19,6 +20,7 @@ static void gn_runner_start(gn_filter *f, const gn_rows *r)
     int used = 0, in_row = 0;
     f->p = GNOMON_TILT_CF_PARAMS;
     gnomon_tilt_cf_init(&f->s, &f->p);
+    f->flags = 0;
     /* the gyro rows' accelerometer (the mean of the samples since the previous gyro
      * sample: Recording.on_time_base), zero vectors too, as gnomon's _start_at */
     for (long i = 0; i < r->n && used < f->p.init_samples; ++i) {
@@ -51,6 +53,17 @@ static void gn_adapter_acc(gn_filter *f, const real_t a[3]) { gnomon_tilt_cf_upd
 static void gn_adapter_mag(gn_filter *f, const real_t m[3]) { (void)f; (void)m; }
 static void gn_adapter_gyro(gn_filter *f, real_t dt, const real_t g[3])
 {
-    gnomon_tilt_cf_update_gyro(&f->s, &f->p, dt, g);
+    f->flags = gnomon_tilt_cf_update_gyro(&f->s, &f->p, dt, g);
 }
 static void gn_adapter_quat(const gn_filter *f, real_t q[4]) { gnomon_tilt_cf_get_quat(&f->s, q); }
+
+/* gnomon_run_signals' columns per estimate, in the order of gnomon's tilt-cf Estimate
+ * signals (FilterSpec.signals): acc_rejected, bias_rad_s (3) */
+#define GN_N_SIGNALS 4
+static void gn_adapter_signals(const gn_filter *f, double *out)
+{
+    out[0] = (f->flags & GNOMON_TILT_CF_ACC_REJECTED) != 0;
+    for (int k = 0; k < 3; ++k) {
+        out[1 + k] = GN_TO_DOUBLE(f->s.bias[k]);
+    }
+}

@@ -20,4 +20,4 @@ SPECS = (FilterSpec(
     adapter="adapter_tilt_cf.h",
     params=("time_constant_s", "bias_gain_1_s2", "accel_rejection_rel", "gravity_m_s2",
             "init_samples"),
-    values=_values),)
+    values=_values, signals=(("acc_rejected", 1, "bool"), ("bias_rad_s", 3, "float"))),)
