@@ -143,7 +143,7 @@ def test_backend_c_reports_the_python_signals(recordings, tmp_path, monkeypatch)
 
     monkeypatch.setenv("GNOMON_DATA_DIR", str(tmp_path))
     named = [n for n in IMU_EXPORTS if SPECS[n].signals]
-    assert {"robust-ahrs", "mahony", "tilt-cf"} <= set(named)
+    assert {"robust-ahrs", "mahony", "tilt-cf", "eskf-r3", "eskf-r6"} <= set(named)
     seen = set()
     for name in named:
         for which, rec in recordings.items():
@@ -160,6 +160,14 @@ def test_backend_c_reports_the_python_signals(recordings, tmp_path, monkeypatch)
                     np.testing.assert_allclose(got[key], want, rtol=0, atol=1e-9,
                                                err_msg=f"{name} {which} {key}")
     assert len(seen) == 4  # rest and motion, disturbed and clean fields: both compared
+    # eskf's bias at its limit (never reached on these logs with the default 0.2 rad/s):
+    # a bound of 2e-4 rad/s, both flag values compared
+    rec = recordings["broad"]
+    ref = gnomon.make_filter("eskf-r3", {"bias_limit": 2e-4}).run(rec).signals
+    got = run_c("eskf-r3", rec, params={"bias_limit": 2e-4}).signals
+    assert 0 < ref["bias_at_limit"].sum() < len(rec)
+    assert np.array_equal(got["bias_at_limit"], ref["bias_at_limit"])
+    np.testing.assert_allclose(got["bias_rad_s"], ref["bias_rad_s"], rtol=0, atol=1e-9)
 
 
 @pytest.mark.slow(reason="about a minute: full phone and BROAD trials through every C export")

@@ -65,7 +65,7 @@ def add_parser(sub) -> None:
                         "calibrate mag --out` or 'self' (fitted to this log's own samples)")
     add_phone_mag_option(s)
     add_backend_option(s, "the filters whose export reports all their signals (robust-ahrs, "
-                          "mahony, tilt-cf)")
+                          "mahony, tilt-cf, eskf-r3, eskf-r6)")
     s.add_argument("--precision", default="double", choices=["double", "float"],
                    help="when the C runs: the C's real_t")
     s.add_argument("--json", action="store_true", help="print a JSON summary")

@@ -17,6 +17,8 @@
 typedef struct {
     gnomon_eskf_state s;
     gnomon_eskf_params p;
+    int flags;                      /* the last update_gyro's */
+    gnomon_eskf_measurement meas;   /* and its measurement (the innovation signal) */
 } gn_filter;
 
 /* rows of `ok` up to time t_end: how many, at least one (np.searchsorted, side right) */
@@ -48,6 +50,8 @@ static void gn_runner_start(gn_filter *f, const gn_rows *r)
 {
     f->p = GNOMON_ESKF_PARAMS;
     gnomon_eskf_init(&f->s, &f->p);
+    f->flags = 0;
+    f->meas.r = 0;
     double t_end = r->t0 + GN_TO_DOUBLE(f->p.init_time);
     long n = gn_eskf_count_until(r, r->a_ok, t_end);
     if (r->has_mag) {
@@ -70,9 +74,30 @@ static void gn_adapter_acc(gn_filter *f, const real_t a[3]) { gnomon_eskf_update
 static void gn_adapter_mag(gn_filter *f, const real_t m[3]) { gnomon_eskf_update_mag(&f->s, m); }
 static void gn_adapter_gyro(gn_filter *f, real_t dt, const real_t g[3])
 {
-    gnomon_eskf_update_gyro(&f->s, &f->p, dt, g);
+    f->flags = gnomon_eskf_update_gyro_measured(&f->s, &f->p, dt, g, &f->meas);
 }
 static void gn_adapter_quat(const gn_filter *f, real_t q[4]) { gnomon_eskf_get_quat(&f->s, q); }
+
+/* gnomon_run_signals' columns per estimate, in the order of gnomon's eskf Estimate signals
+ * (FilterSpec.signals): bias_rad_s (3), bias_at_limit, innovation (r: the measurement of
+ * a row both sensors corrected, else 0, as the kernel leaves it), cov_diag (6: the
+ * diagonal of P), update_skipped */
+#define GN_N_SIGNALS (11 + GNOMON_ESKF_R)
+static void gn_adapter_signals(const gn_filter *f, double *out)
+{
+    bool full = f->meas.r == GNOMON_ESKF_R;
+    for (int k = 0; k < 3; ++k) {
+        out[k] = GN_TO_DOUBLE(f->s.bias[k]);
+    }
+    out[3] = (f->flags & GNOMON_ESKF_AT_LIMIT) != 0;
+    for (int j = 0; j < GNOMON_ESKF_R; ++j) {
+        out[4 + j] = full ? GN_TO_DOUBLE(f->meas.y[j]) : 0.0;
+    }
+    for (int j = 0; j < 6; ++j) {
+        out[4 + GNOMON_ESKF_R + j] = GN_TO_DOUBLE(f->s.P[7 * j]);
+    }
+    out[10 + GNOMON_ESKF_R] = (f->flags & GNOMON_ESKF_SKIPPED) != 0;
+}
 
 /* ---- gnomon_run --phases / gnomon_count --phases ---- */
 #ifndef GN_RUNNER_NO_MAIN

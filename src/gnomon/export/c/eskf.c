@@ -605,6 +605,14 @@ void gnomon_eskf_apply(gnomon_eskf_state *s, const gnomon_eskf_params *p,
 int gnomon_eskf_update_gyro(gnomon_eskf_state *s, const gnomon_eskf_params *p, real_t dt_s,
                             const real_t gyro[3])
 {
+    gnomon_eskf_measurement meas;
+    return gnomon_eskf_update_gyro_measured(s, p, dt_s, gyro, &meas);
+}
+
+int gnomon_eskf_update_gyro_measured(gnomon_eskf_state *s, const gnomon_eskf_params *p,
+                                     real_t dt_s, const real_t gyro[3],
+                                     gnomon_eskf_measurement *meas)
+{
     real_t a[3], m[3];
     bool new_a = s->acc_count > 0, new_m = s->mag_count > 0;
     for (int i = 0; i < 3; ++i) {
@@ -615,13 +623,13 @@ int gnomon_eskf_update_gyro(gnomon_eskf_state *s, const gnomon_eskf_params *p, r
     }
     s->acc_count = 0;
     s->mag_count = 0;
+    meas->r = 0;
     if (!(GN_ISFINITE(gyro[0]) && GN_ISFINITE(gyro[1]) && GN_ISFINITE(gyro[2]))) {
         return GNOMON_ESKF_BAD_GYRO;
     }
     gnomon_eskf_predict(s, p, dt_s, gyro);
-    gnomon_eskf_measurement meas;
-    int flags = gnomon_eskf_measure(s, p, dt_s, new_a ? a : 0, new_m ? m : 0, &meas);
-    gnomon_eskf_apply(s, p, &meas);
+    int flags = gnomon_eskf_measure(s, p, dt_s, new_a ? a : 0, new_m ? m : 0, meas);
+    gnomon_eskf_apply(s, p, meas);
     real_t lim = p->bias_limit;
     if (GN_FABS(s->bias[0]) >= lim || GN_FABS(s->bias[1]) >= lim || GN_FABS(s->bias[2]) >= lim) {
         flags |= GNOMON_ESKF_AT_LIMIT;

@@ -116,6 +116,11 @@ void gnomon_eskf_update_acc(gnomon_eskf_state *s, const real_t acc[3]);
 void gnomon_eskf_update_mag(gnomon_eskf_state *s, const real_t mag_uT[3]);
 int gnomon_eskf_update_gyro(gnomon_eskf_state *s, const gnomon_eskf_params *p, real_t dt_s,
                             const real_t gyro[3]);
+/* update_gyro that also gives the row's measurement (*meas: r rows, r = GNOMON_ESKF_R when
+ * both sensors corrected the state; y, the innovation telemetry; r = 0 when nothing did) */
+int gnomon_eskf_update_gyro_measured(gnomon_eskf_state *s, const gnomon_eskf_params *p,
+                                     real_t dt_s, const real_t gyro[3],
+                                     gnomon_eskf_measurement *meas);
 void gnomon_eskf_get_quat(const gnomon_eskf_state *s, real_t q_nb[4]);
 void gnomon_eskf_get_bias(const gnomon_eskf_state *s, real_t bias_rad_s[3]);
 void gnomon_eskf_get_cov(const gnomon_eskf_state *s, real_t P[36]);

@@ -25,5 +25,8 @@ SPECS = tuple(
     FilterSpec(filter=f"eskf-r{r}", prefix="eskf", sources=("eskf.c",),
                headers=("eskf.h", "eskf_unrolled.h"),
                adapter="adapter_eskf.h", defines=(f"#define GNOMON_ESKF_R {r}",),
-               params=PARAMS, values=coefficient_values, phases=True)
+               params=PARAMS, values=coefficient_values, phases=True,
+               signals=(("bias_rad_s", 3, "float"), ("bias_at_limit", 1, "bool"),
+                        ("innovation", r, "float"), ("cov_diag", 6, "float"),
+                        ("update_skipped", 1, "bool")))
     for r in (3, 6))
