@@ -197,7 +197,7 @@ def add_backend_option(s, which: str) -> None:
                         "else python. Both give the same estimates")
 
 
-def c_failure(err: Exception) -> str | None:
+def _c_failure(err: Exception) -> str | None:
     """What an error of the C path ``err`` means, or None for an error of the command's own:
     ``make`` failed or the cache is unwritable (an ``OSError``): the build; the export
     refuses a parameter (``--param``: tilt-cf's speed compensation, which the C does not
@@ -209,13 +209,13 @@ def c_failure(err: Exception) -> str | None:
     return None
 
 
-def fall_back_from_c(requested: str, err: Exception) -> bool:
-    """Whether an error of the C path ``err`` (:func:`c_failure`: the build, or a parameter
-    the export refuses) leaves the command to the numba kernels: only under ``--backend
-    auto`` (``requested``), said on stderr. Any other error is the caller's to raise."""
-    what = c_failure(err)
+def fall_back_from_c(requested: str, err: Exception) -> str | None:
+    """Why an error of the C path ``err`` (the build, or a parameter the export refuses)
+    leaves the command to the numba kernels, said on stderr; only under ``--backend auto``
+    (``requested``). None: any other error, the caller's to raise."""
+    what = _c_failure(err)
     if requested != "auto" or what is None:
-        return False
+        return None
     print(f"gnomon: {what}, running the numba kernels instead "
           f"(--backend python skips the C): {err}", file=sys.stderr)
-    return True
+    return what

@@ -11,7 +11,6 @@ from gnomon.cli.common import (
     add_format_option,
     add_log_options,
     add_phone_mag_option,
-    c_failure,
     fall_back_from_c,
     parse_pairs,
     print_json,
@@ -151,9 +150,10 @@ def _run_filter(args, rec, params: dict):
             return (run_c(args.filter, rec, args.precision, params), f"c ({args.precision})",
                     why)
         except (InputError, OSError) as e:  # the build, or a parameter the C does not take
-            if not fall_back_from_c(args.backend, e):
+            what = fall_back_from_c(args.backend, e)
+            if what is None:
                 raise
-            why = f"{c_failure(e)}: {e}"
+            why = f"{what}: {e}"
     return registry.create(args.filter, params).run(rec), "python", why
 
 

@@ -130,7 +130,7 @@ def _backend(args, name, filt):
     try:
         return c_filter_class(name)(filt.params)
     except (InputError, OSError) as e:  # the build, or a parameter the C does not take
-        if not fall_back_from_c(args.backend, e):
+        if fall_back_from_c(args.backend, e) is None:
             raise
         return filt
 

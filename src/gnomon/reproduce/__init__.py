@@ -46,13 +46,18 @@ def run(paper: str, out_dir: Path | None = None, quick: bool = False,
 LONGEST_FIRST = ("003", "001", "000", "002", "004")
 
 
+def _failed(paper: str, exc: BaseException) -> dict:
+    """The result of a paper that raised ``exc`` (being handled)."""
+    return {"paper": paper, "error": f"{type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc()}
+
+
 def _run_recorded(paper: str, sub: Path | None, quick: bool, progress: bool) -> dict:
     """``run(paper, ...)``, or ``{"paper", "error", "traceback"}`` if it raised."""
     try:
         return run(paper, sub, quick=quick, progress=progress)
     except Exception as exc:  # one paper failing must not lose the others
-        return {"paper": paper, "error": f"{type(exc).__name__}: {exc}",
-                "traceback": traceback.format_exc()}
+        return _failed(paper, exc)
 
 
 def run_all(out_dir: Path | None = None, quick: bool = False, progress: bool = False,
@@ -91,8 +96,7 @@ def run_all(out_dir: Path | None = None, quick: bool = False, progress: bool = F
                     try:
                         done[paper] = fut.result()
                     except Exception as exc:  # noqa: BLE001 - its process died
-                        done[paper] = {"paper": paper, "error": f"{type(exc).__name__}: {exc}",
-                                       "traceback": traceback.format_exc()}
+                        done[paper] = _failed(paper, exc)
                     bar.note(f"paper {paper} done")
                     bar.update(1)
     results = {p: done[p] for p in papers}
