@@ -46,6 +46,34 @@ def test_H_against_finite_differences():
                                    atol=1e-8)
 
 
+@pytest.mark.parametrize("m", [3, 6])
+def test_row_at_a_time_update_is_the_joint_joseph_update(m):
+    """``correct`` takes the rows one by one; with a diagonal R that is the paper's joint
+    update ``K = P Hᵀ (H P Hᵀ + R)⁻¹``, ``P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ`` (numpy's
+    solve here), the quaternion renormalised after."""
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        A = rng.standard_normal((7, 7))
+        P = A @ A.T * 1e-3 + np.eye(7) * 1e-4
+        z = np.concatenate([rng.normal(0, 0.01, 3), quat_from_euler(rng.uniform(-2, 2, 3))])
+        Hq = rng.standard_normal((m, 4))
+        y = rng.normal(0, 0.05, m)
+        r = rng.uniform(1e-4, 4e-4, m)
+        H = np.hstack([np.zeros((m, 3)), Hq])
+        K_ = P @ H.T @ np.linalg.inv(H @ P @ H.T + np.diag(r))
+        IKH = np.eye(7) - K_ @ H
+        P_joint = IKH @ P @ IKH.T + K_ @ np.diag(r) @ K_.T
+        z_joint = z + K_ @ y
+        z_joint[3:] /= np.linalg.norm(z_joint[3:])
+        zz, PP = z.copy(), P.copy()
+        w = K.workspace()
+        K.correct(m, zz, PP, Hq, y, r, w.dz, w.p, w.kg)
+        np.testing.assert_allclose(zz, z_joint, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(PP, P_joint, rtol=1e-10, atol=1e-18)
+        np.testing.assert_array_equal(PP, PP.T)
+        assert np.all(np.linalg.eigvalsh(PP) > 0)
+
+
 @pytest.mark.slow(reason="5 s (2 cores): long runs or a first compilation")
 @pytest.mark.parametrize("gg", [0.0, 3 * 0.0011**2])
 def test_F_against_finite_differences(gg):

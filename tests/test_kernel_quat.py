@@ -138,32 +138,6 @@ def test_linalg_toolbox_agrees_with_numpy():
     assert kl.clip(3.0, 2.0) == 2.0 and kl.clip(-3.0, 2.0) == -2.0 and kl.clip(1.5, 2.0) == 1.5
 
 
-def test_small_matrix_helpers_agree_with_numpy():
-    """matmul / matmul_bt / matvec against numpy's ``@``, spd_solve against
-    ``numpy.linalg.solve`` on innovation-like covariances ``H P Hᵀ + R`` (m = 3, 6), and
-    NaN, not a wrong number, for a matrix that is not positive definite."""
-    from gnomon.kernels import linalg as kl
-
-    rng = np.random.default_rng(8)
-    for n, k, m in ((7, 7, 7), (6, 7, 6), (7, 6, 7), (4, 3, 1), (3, 4, 4)):
-        a, b, bt = rng.normal(size=(n, k)), rng.normal(size=(k, m)), rng.normal(size=(m, k))
-        x = rng.normal(size=k)
-        np.testing.assert_allclose(kl.matmul(a, b), a @ b, rtol=1e-13, atol=1e-14)
-        np.testing.assert_allclose(kl.matmul_bt(a, bt), a @ bt.T, rtol=1e-13, atol=1e-14)
-        np.testing.assert_allclose(kl.matvec(a, x), a @ x, rtol=1e-13, atol=1e-14)
-    for rows in (3, 6):
-        for _ in range(20):
-            L = rng.normal(size=(7, 7))
-            P = L @ L.T * 1e-4
-            H = rng.normal(size=(rows, 7))
-            S = H @ P @ H.T + 1e-6 * np.eye(rows)
-            B = H @ P
-            X = kl.spd_solve(S, B)
-            np.testing.assert_allclose(X, np.linalg.solve(S, B), rtol=1e-9,
-                                       atol=1e-9 * np.abs(X).max())
-    assert np.isnan(kl.spd_solve(np.diag([1.0, -1.0]), np.eye(2))).all()
-
-
 def test_mat3_tuple_helpers_agree_with_numpy():
     from gnomon.kernels import linalg as kl
 

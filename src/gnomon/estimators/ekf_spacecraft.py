@@ -297,14 +297,14 @@ class EKFSpacecraft(CompiledSampleUpdate, Estimator):
                          hdot_b_Nm=None, tau_b_Nm=None, inertia_kg_m2=None) -> np.ndarray:
         """The readable twin of ``update``: ``ekf_row.py_func`` (the kernel's row interpreted,
         its phases as compiled) on the same state. Same arguments and result."""
-        from gnomon.kernels.ekf_spacecraft import ekf_row
+        from gnomon.kernels.ekf_spacecraft import ekf_row, workspace
 
         x = self._inputs(mag_b, mag_ref_o, sun_b, sun_ref_o, w_io_o_rad_s, h_b_Nms,
                          hdot_b_Nm, tau_b_Nm)
         if self._coef is None or self.state is None:
             self._start_from_sample(*x[:5], inertia_kg_m2)
         ekf_row.py_func(self._coef, self.state.view(np.recarray)[0], float(dt_s), *x[:4],
-                        True, *x[4:], np.empty(2))
+                        True, *x[4:], np.empty(2), workspace.py_func())
         return self.state["z"][0, 3:7].copy()
 
     def update_many(self, dt_s, gyro_rad_s=None, *, mag_b=None, mag_ref_o=None, sun_b=None,

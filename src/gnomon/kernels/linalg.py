@@ -1,16 +1,14 @@
-"""Small linear algebra for the compiled filters (numba): 3-vectors, 3x3 matrices and the
-small (n <= 10) matrices of the matrix-style kernels.
+"""Small linear algebra for the compiled filters (numba): 3-vectors and 3x3 matrices.
 
 The one place where a kernel takes a cross product, inverts or solves a 3x3 system,
-multiplies small matrices, solves a small positive-definite system, clips a value or
-symmetrises a covariance. Scalar forms take and return floats (tuples; inlined, kept in
-registers); ``*_arr`` forms and ``matmul`` / ``matmul_bt`` / ``matvec`` /
-``spd_solve`` work on numpy arrays for the matrix-style kernels. Written by hand
-because numba's ``np.linalg`` calls LAPACK, and its ``@`` BLAS, through a wrapper per
-call that costs more than the arithmetic of a 7x7 product (the spacecraft EKF spent
-7.7 µs per sample in about 30 such calls, 2.6 µs with these loops), and a 3x3 inverse
-by cofactors, a Cholesky solve of an innovation covariance, are exact enough for the
-well-conditioned matrices of these filters (tested against ``numpy.linalg``).
+multiplies 3x3 matrices, clips a value or symmetrises a covariance. Scalar forms take
+and return floats (tuples; inlined, kept in registers); ``*_arr`` forms work on numpy
+arrays. Written by hand because numba's ``np.linalg`` calls LAPACK, and its ``@`` BLAS,
+through a wrapper per call that costs more than the arithmetic of a 3x3 product (the
+spacecraft EKF spent 7.7 µs per sample in about 30 such calls, 2.6 µs with plain loops),
+and a 3x3 inverse by cofactors is exact enough for the well-conditioned matrices of
+these filters (tested against ``numpy.linalg``). The 7x7 products of the spacecraft EKF
+are loops in its own kernel (``gnomon.kernels.ekf_spacecraft``).
 """
 
 from __future__ import annotations
@@ -194,76 +192,3 @@ def finite_or_nan(x, y, z):
 
 
 # Small matrices as 2-D arrays: plain loops, sums left to right over the inner index.
-@njit(cache=True)
-def matmul(a, b):
-    """``A B`` of 2-D arrays (n, k) and (k, m) as a new (n, m) array."""
-    n, k, m = a.shape[0], a.shape[1], b.shape[1]
-    out = np.empty((n, m))
-    for i in range(n):
-        for j in range(m):
-            v = 0.0
-            for r in range(k):
-                v += a[i, r] * b[r, j]
-            out[i, j] = v
-    return out
-
-
-@njit(cache=True)
-def matmul_bt(a, b):
-    """``A Bᵀ`` of 2-D arrays (n, k) and (m, k) as a new (n, m) array."""
-    n, k, m = a.shape[0], a.shape[1], b.shape[0]
-    out = np.empty((n, m))
-    for i in range(n):
-        for j in range(m):
-            v = 0.0
-            for r in range(k):
-                v += a[i, r] * b[j, r]
-            out[i, j] = v
-    return out
-
-
-@njit(cache=True)
-def matvec(a, x):
-    """``A x`` of a 2-D array (n, k) and a vector (k,) as a new (n,) array."""
-    n, k = a.shape[0], a.shape[1]
-    out = np.empty(n)
-    for i in range(n):
-        v = 0.0
-        for r in range(k):
-            v += a[i, r] * x[r]
-        out[i] = v
-    return out
-
-
-@njit(cache=True, error_model="numpy")
-def spd_solve(S, B):
-    """``X = S⁻¹ B`` for a symmetric positive-definite ``S`` (m, m) and ``B`` (m, n), by
-    Cholesky (``S = L Lᵀ``, two triangular solves); a new (m, n) array. ``S`` must be
-    positive definite (an innovation covariance ``H P Hᵀ + R`` with ``R > 0`` is): else
-    the result holds NaN."""
-    m, n = S.shape[0], B.shape[1]
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = S[j, j]
-        for r in range(j):
-            d -= L[j, r] * L[j, r]
-        d = math.sqrt(d) if d > 0.0 else math.nan
-        L[j, j] = d
-        for i in range(j + 1, m):
-            v = S[i, j]
-            for r in range(j):
-                v -= L[i, r] * L[j, r]
-            L[i, j] = v / d
-    X = np.empty((m, n))
-    for c in range(n):
-        for i in range(m):                  # L y = b
-            v = B[i, c]
-            for r in range(i):
-                v -= L[i, r] * X[r, c]
-            X[i, c] = v / L[i, i]
-        for i in range(m - 1, -1, -1):      # Lᵀ x = y
-            v = X[i, c]
-            for r in range(i + 1, m):
-                v -= L[r, i] * X[r, c]
-            X[i, c] = v / L[i, i]
-    return X

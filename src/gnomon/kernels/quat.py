@@ -247,10 +247,8 @@ def rotate_quadratic_jac(w, x, y, z, vx, vy, vz, A):
 
 
 @njit(cache=True)
-def xi(q):
-    """``Ξ(q)`` (4, 3): ``q ⊗ [0, v] = Ξ(q) v``."""
-    m = np.empty((4, 3))
-    w, x, y, z = q[0], q[1], q[2], q[3]
+def xi_into(w, x, y, z, m):
+    """``m`` (4, 3) ``<- Ξ(q)``: ``q ⊗ [0, v] = Ξ(q) v``."""
     m[0, 0] = -x
     m[0, 1] = -y
     m[0, 2] = -z
@@ -263,23 +261,40 @@ def xi(q):
     m[3, 0] = -y
     m[3, 1] = x
     m[3, 2] = w
+
+
+@njit(cache=True)
+def xi(q):
+    """``Ξ(q)`` (4, 3) as a new array (:func:`xi_into`)."""
+    m = np.empty((4, 3))
+    xi_into(q[0], q[1], q[2], q[3], m)
     return m
 
 
 @njit(cache=True)
+def omega_into(vx, vy, vz, m):
+    """``m`` (4, 4) ``<- Ω(v)``: ``q ⊗ [0, v] = Ω(v) q``."""
+    m[0, 0] = 0.0
+    m[0, 1] = -vx
+    m[0, 2] = -vy
+    m[0, 3] = -vz
+    m[1, 0] = vx
+    m[1, 1] = 0.0
+    m[1, 2] = vz
+    m[1, 3] = -vy
+    m[2, 0] = vy
+    m[2, 1] = -vz
+    m[2, 2] = 0.0
+    m[2, 3] = vx
+    m[3, 0] = vz
+    m[3, 1] = vy
+    m[3, 2] = -vx
+    m[3, 3] = 0.0
+
+
+@njit(cache=True)
 def omega(v):
-    """``Ω(v)`` (4, 4): ``q ⊗ [0, v] = Ω(v) q``."""
-    m = np.zeros((4, 4))
-    m[0, 1] = -v[0]
-    m[0, 2] = -v[1]
-    m[0, 3] = -v[2]
-    m[1, 0] = v[0]
-    m[1, 2] = v[2]
-    m[1, 3] = -v[1]
-    m[2, 0] = v[1]
-    m[2, 1] = -v[2]
-    m[2, 3] = v[0]
-    m[3, 0] = v[2]
-    m[3, 1] = v[1]
-    m[3, 2] = -v[0]
+    """``Ω(v)`` (4, 4) as a new array (:func:`omega_into`)."""
+    m = np.empty((4, 4))
+    omega_into(v[0], v[1], v[2], m)
     return m
