@@ -335,7 +335,7 @@ def correct(m, z, P, Hq, y, r, dz, p, k):
     so far). Each row is a scalar Joseph update
     ``P⁺ = (I − k h) P (I − k h)ᵀ + k r kᵀ = P − k pᵀ − p kᵀ + s k kᵀ`` (``p = P hᵀ``,
     ``s = h p + r``, ``k = p / s``), written on one triangle and mirrored (symmetric
-    exactly). No Cholesky, no m x m system: a third of the joint form's arithmetic.
+    exactly). No Cholesky, no m x m system: about half the joint form's arithmetic.
     The zero rate columns of ``H`` are skipped, not multiplied. The quaternion is
     renormalised. ``dz``, ``p``, ``k`` (7,) scratch."""
     for a in range(7):
