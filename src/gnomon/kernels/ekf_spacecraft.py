@@ -23,8 +23,8 @@ How it is fast: 7x7 matrices are too small for numba's ``@`` and ``np.linalg`` (
 BLAS/LAPACK call per product costs more than its arithmetic), so the products are plain
 loops; the dynamics ``f`` (four times per sample in the RK4) and the Jacobian are scalar
 code without temporaries; the sample loop allocates nothing (``Work``: scratch arrays
-made once per batch, handed to the phases one by one, not as the tuple, whose every
-array a call would reference-count); and the update takes its rows one at a time (a
+made once per batch; ``predict_state``, ``_vector_rows`` and ``correct`` are given the
+arrays they use); and the update takes its rows one at a time (a
 scalar Joseph update each, no Cholesky; R is diagonal), skipping the zero rate columns
 of ``H``. One seed-001 orbit (6,001 samples): 7.7 -> 3.1 µs per sample (an earlier,
 faster machine); on the 2-core machine of 2026-12-07, interleaved best of 20, 23.9 ->
