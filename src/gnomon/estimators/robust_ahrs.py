@@ -36,6 +36,15 @@ n = ENU. The estimate is
   but its magnetometer turns, so it is not rest and the bias does not absorb its rate
   (``tests/test_steady_turn.py``). A turn about the field and gravity both (no
   magnetometer sample, a turn about the vertical) cannot be told from a bias: no rest.
+* **First-rest reset** (``rest_reset``): until the first rest the gyro bias is unknown
+  and the estimate drifts; the running means of the start-up (accelerometer in I,
+  heading) keep that drift for seconds (the heading for about ``tau_mag_s``). The
+  first rest while the heading is still starting (its first ``tau_mag_s``; without a
+  magnetometer, the first rest) restarts the accelerometer low-pass in I settled at
+  the rest's low-passed specific force (the inclination follows at once) and sets the
+  heading to the rest's low-passed field (hard-iron offset removed) seen in frame 6.
+  A later first rest changes nothing: after the start-up the heading trusts the field
+  only through ``tau_mag_s`` and the disturbance tests, which a reset would bypass.
 * **Gyro bias** (3-state Kalman filter, rad/s): at rest the measurement is the
   low-passed gyro (``H = I``, std ``bias_sigma_rest_deg_s``); in motion
   (``motion_bias``) the inclination correction is the measurement of the
@@ -219,6 +228,10 @@ class RobustAHRSParams(Params):
                                     "not rest (0: off)")
     rest_th_acc_m_s2: float = param(0.5, "m/s^2", "rest threshold on the accelerometer "
                                     "deviation")
+    rest_reset: bool = param(True, "", "the first rest, while the heading is still starting "
+                             "(its first tau_mag_s), sets the inclination and the heading "
+                             "from the rest's low-passed accelerometer and magnetometer: "
+                             "before it the gyro bias was unknown and the estimate drifted")
     mag_current_tau_s: float = param(0.05, "s", "low-pass of the field's norm and dip")
     mag_ref_tau_s: float = param(20.0, "s", "time constant of the learned field reference")
     mag_norm_th: float = param(0.1, "", "relative norm deviation that flags a disturbance")
@@ -352,6 +365,28 @@ def _gyro_says_turned(s, c) -> bool:
     return bool(s.rest_m0_ok and m @ m > 0.0 and _chord2(Rt @ m, m) >= big)
 
 
+def _first_rest_reset(s, c, a_lp):
+    """The first rest, while the heading is still starting (``k_mag_init`` not 0): the
+    accelerometer low-pass in frame I restarts settled at the rest's low-passed specific
+    force ``a_lp`` (body), and the next magnetometer sample sets the heading."""
+    s.reset_done = True
+    if s.k_mag_init == 0.0:
+        return
+    x, lp = dcm_from_quat(s.q_gyr) @ a_lp, c.acc_lp
+    s.acc_lp.z0, s.acc_lp.z1, s.acc_lp.n = x * (1.0 - lp.b0), x * (lp.b2 - lp.a2), -1
+    s.heading_reset = True
+
+
+def _heading_reset(s):
+    """``delta`` set to the heading, in frame 6, of the low-passed magnetometer (hard-iron
+    offset removed): the heading of the first rest."""
+    s.heading_reset = False
+    m6 = _dcm6(s) @ (s.mag_body_lp - s.hard_iron.o)
+    if m6[0] * m6[0] + m6[1] * m6[1] > 0.0:
+        s.delta = d = math.atan2(m6[0], m6[1])
+        s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * d), math.sin(0.5 * d)
+
+
 def _rest_acc(s, c, a):
     """Rest detection, accelerometer part: rest after ``rest_min_s`` within the threshold
     of the low-passed specific force ``a`` (m/s²) while its direction stays within
@@ -375,6 +410,8 @@ def _rest_acc(s, c, a):
             s.rest_t >= c.rest_min_large_s and (c.rest_th_turn2 == 0.0
                                                 or _gyro_says_turned(s, c)))):
         s.rest = True
+        if c.rest_reset and not s.reset_done:
+            _first_rest_reset(s, c, a_lp)
 
 
 def _rest_mag(s, c, m):
@@ -725,6 +762,8 @@ class RobustAHRS(CompiledIMUUpdate, Estimator):
             if m is not None:
                 if c.rest_bias:
                     _rest_mag(s, c, m)
+                if s.heading_reset:
+                    _heading_reset(s)
                 _magnetometer(s, c, m)
         self._flags = flags | (BIAS_AT_LIMIT if s.bias_at_limit else 0)
         return self.q

@@ -25,13 +25,16 @@ separate functions 8 s, for a batch loop about 1.4x slower (still faster than VQ
 2. ``strapdown``: ``q_gyr <- q_gyr ⊗ exp((ω - b) dt)`` (and ``rest_turn``: the same
    rotation since a rest candidacy began); a gap (``dt > max_dt_s``) ends the step here;
 3. ``rest_acc`` and ``inclination``: the rest detection's accelerometer part (its
-   direction must not turn; a large rate is a bias only where ``gyro_says_turned``),
-   accelerometer low-pass in I and the correction of ``q_acc`` that takes it to up;
+   direction must not turn; a large rate is a bias only where ``gyro_says_turned``; the
+   first rest of the start-up restarts the low-pass in I at the rest's force and asks
+   for the heading, ``first_rest_reset``), accelerometer low-pass in I and the
+   correction of ``q_acc`` that takes it to up;
 4. ``bias_kf``: the gyro-bias Kalman filter, at rest (``H = I``) or in motion (the
    inclination correction as a measurement of the horizontal bias);
 5. ``rest_mag`` (the field's direction in the body frame must not turn during a rest),
-   ``mag_accumulate`` → ``hard_iron`` → ``mag_disturbance`` / ``new_field`` →
-   ``heading_gain`` → ``heading``: the magnetometer, heading only.
+   ``heading_reset`` (after a first rest), ``mag_accumulate`` → ``hard_iron`` →
+   ``mag_disturbance`` / ``new_field`` → ``heading_gain`` → ``heading``: the
+   magnetometer, heading only.
 
 The batch loop (``robust_ahrs_batch``) and the per-sample kernel of the filter's ``update``
 (``robust_ahrs_sample``) take the coefficients as a record (``gnomon.kernels.entry.record``)
@@ -226,6 +229,50 @@ def gyro_says_turned(s, c):
 
 
 @njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def settle3(f, x0, x1, x2, lp):
+    """Restart the ``LowPass`` ``lp`` of a 3-vector (state ``f``, ``LOWPASS_3``) settled at
+    ``x``: its steady state for a constant input ``x`` (the start-up's running mean over)."""
+    z0, z1 = f.z0, f.z1
+    z0[0], z0[1], z0[2] = x0 * (1.0 - lp.b0), x1 * (1.0 - lp.b0), x2 * (1.0 - lp.b0)
+    g = lp.b2 - lp.a2
+    z1[0], z1[1], z1[2] = x0 * g, x1 * g, x2 * g
+    f.n = -1
+
+
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def first_rest_reset(s, c, lx, ly, lz):
+    """The first rest, while the heading is still starting (``k_mag_init`` not 0; without a
+    magnetometer: the first rest): before it the gyro bias was unknown and the estimate
+    drifted, the start-up's running means keep that drift for seconds. The accelerometer
+    low-pass in frame I restarts settled at the rest's low-passed specific force ``l``
+    (body; the inclination phase that follows turns ``q_acc`` to it), and the next
+    magnetometer sample sets the heading (``heading_reset``). A first rest after the
+    start-up changes nothing."""
+    s.reset_done = True
+    if s.k_mag_init == 0.0:
+        return
+    g = s.q_gyr
+    ix, iy, iz = quat.rotate(g[0], g[1], g[2], g[3], lx, ly, lz)
+    settle3(s.acc_lp, ix, iy, iz, c.acc_lp)
+    s.heading_reset = True
+
+
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def heading_reset(s, R):
+    """``delta`` set to the heading, in frame 6 (``R`` = R_6b, 9-tuple), of the low-passed
+    magnetometer (hard-iron offset removed): the heading of the first rest
+    (``first_rest_reset``)."""
+    s.heading_reset = False
+    m, o = s.mag_body_lp, s.hard_iron.o
+    ex, ey, _ = linalg.mat3_vec(R, m[0] - o[0], m[1] - o[1], m[2] - o[2])
+    if ex * ex + ey * ey > 0.0:
+        d = math.atan2(ex, ey)
+        s.delta = d
+        s.cos_half_delta = math.cos(0.5 * d)
+        s.sin_half_delta = math.sin(0.5 * d)
+
+
+@njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def rest_acc(s, c, ax, ay, az):
     """Accelerometer part of the rest detection: rest after ``rest_min_s`` within the
     threshold of the low-passed specific force while its direction stays within
@@ -234,7 +281,8 @@ def rest_acc(s, c, ax, ay, az):
     bias not yet estimated, or a slow rotation) counts as rest only after
     ``rest_min_large_s``, and only when the gyro says the accelerometer or magnetometer
     would have turned by twice ``rest_th_turn`` meanwhile: they did not, so the rate is a
-    bias. A turn about the field and gravity both cannot be told from a bias: no rest."""
+    bias. A turn about the field and gravity both cannot be told from a bias: no rest.
+    The first rest may reset the start-up's estimate (``first_rest_reset``)."""
     lx, ly, lz = lowpass3(s.rest_acc_lp, ax, ay, az, c.rest_acc_lp)
     dx, dy, dz = ax - lx, ay - ly, az - lz
     if dx * dx + dy * dy + dz * dz >= c.rest_th_acc2:
@@ -255,6 +303,8 @@ def rest_acc(s, c, ax, ay, az):
         if far <= c.rest_th_rate or (s.rest_t >= c.rest_min_large_s and (
                 c.rest_th_turn2 == 0.0 or gyro_says_turned(s, c))):
             s.rest = True
+            if c.rest_reset and not s.reset_done:
+                first_rest_reset(s, c, lx, ly, lz)
 
 
 @njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
@@ -641,6 +691,8 @@ def robust_ahrs_step(s, c, dt, gx, gy, gz, ax, ay, az, mx, my, mz):
     if mx * mx + my * my + mz * mz > 0.0:
         if c.rest_bias:
             rest_mag(s, c, mx, my, mz)
+        if s.heading_reset:
+            heading_reset(s, R)
         magnetometer(s, c, R, mx, my, mz)
     else:
         flags |= MAG_SKIPPED

@@ -53,6 +53,7 @@ class Coefficients(NamedTuple):
     rest_min_large_s: float
     rest_mag_lp: LowPass  # the magnetometer in the body frame (its own sample time)
     rest_th_turn2: float  # squared chord of rest_th_turn_deg between unit vectors (0: off)
+    rest_reset: bool  # the first rest of the start-up sets the inclination and the heading
     # inclination
     acc_lp: LowPass  # the accelerometer in frame I
     # gyro-bias Kalman filter, run on every bias_every-th accelerometer sample
@@ -154,6 +155,7 @@ def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
         rest_min_large_s=float(p.rest_min_large_bias_s),
         rest_mag_lp=_lowpass(p.rest_tau_s, ts_m),
         rest_th_turn2=(2.0 * math.sin(0.5 * p.rest_th_turn_deg * d2r)) ** 2,
+        rest_reset=bool(p.rest_reset),
         acc_lp=_lowpass(p.tau_acc_s, ts_acc),
         motion_bias=bool(p.motion_bias), bias_every=int(p.bias_every),
         bias_lp=_lowpass(p.tau_acc_s, ts_b),
@@ -234,6 +236,8 @@ STATE = np.dtype([
     ("bias_at_limit", np.bool_),  # a component of the bias at ±bias_clip (in the padding)
     ("mag_body_ok", np.bool_),  # mag_body_lp holds a sample
     ("rest_m0_ok", np.bool_),  # rest_m0 was taken
+    ("reset_done", np.bool_),  # the first rest came (and reset the start-up's estimate)
+    ("heading_reset", np.bool_),  # the next magnetometer sample sets the heading
     # inclination and bias in motion
     ("acc_lp", LOWPASS_3),  # m/s², frame I
     ("acc_rate", np.float64),  # rad/s: sine of the last correction angle / ts

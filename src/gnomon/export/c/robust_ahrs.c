@@ -92,6 +92,7 @@ void gnomon_robust_ahrs_coefficients_from(gnomon_robust_ahrs_coefficients *c,
     lowpass_coefficients(&c->rest_mag_lp, p->rest_tau_s, ts_m);
     x = R(2.0) * GN_SIN(R(0.5) * p->rest_th_turn_deg * d2r);
     c->rest_th_turn2 = x * x;
+    c->rest_reset = p->rest_reset;
     lowpass_coefficients(&c->acc_lp, p->tau_acc_s, ts_acc);
     c->motion_bias = p->motion_bias;
     c->bias_every = p->bias_every;
@@ -186,6 +187,8 @@ void gnomon_robust_ahrs_reset(gnomon_robust_ahrs_state *s, const gnomon_robust_a
     s->bias_at_limit = false;
     s->mag_body_ok = false;
     s->rest_m0_ok = false;
+    s->reset_done = false;
+    s->heading_reset = false;
     zero_lp(s->acc_lp.z0, 3);
     zero_lp(s->acc_lp.z1, 3);
     s->acc_lp.n = 0;
@@ -473,6 +476,46 @@ static bool gyro_says_turned(const gnomon_robust_ahrs_state *s,
     return false;
 }
 
+/* the first rest, while the heading is still starting (k_mag_init not 0): the accelerometer
+ * low-pass in frame I restarts settled at the rest's low-passed force l (body; the
+ * inclination that follows turns q_acc to it), and the next magnetometer sample sets the
+ * heading (heading_reset); a first rest after the start-up changes nothing */
+static void first_rest_reset(gnomon_robust_ahrs_state *s,
+                             const gnomon_robust_ahrs_coefficients *c, const real_t l[3])
+{
+    real_t ia[3];
+    s->reset_done = true;
+    if (s->k_mag_init == R(0.0)) {
+        return;
+    }
+    rotate(s->q_gyr, l, ia);
+    const gnomon_robust_ahrs_lowpass *lp = &c->acc_lp;
+    for (int i = 0; i < 3; ++i) {  /* the steady state for a constant input ia */
+        s->acc_lp.z0[i] = LPV(ia[i]) * (LPV(1.0) - lp->b0);
+        s->acc_lp.z1[i] = LPV(ia[i]) * (lp->b2 - lp->a2);
+    }
+    s->acc_lp.n = -1;
+    s->heading_reset = true;
+}
+
+/* delta set to the heading, in frame 6 (Rm = R_6b), of the low-passed magnetometer
+ * (hard-iron offset removed): the first rest's heading */
+static void heading_reset(gnomon_robust_ahrs_state *s, const real_t Rm[9])
+{
+    real_t m[3], e[3];
+    s->heading_reset = false;
+    for (int i = 0; i < 3; ++i) {
+        m[i] = s->mag_body_lp[i] - s->hard_iron.o[i];
+    }
+    mat3_vec(Rm, m[0], m[1], m[2], e);
+    if (e[0] * e[0] + e[1] * e[1] > R(0.0)) {
+        real_t d = GN_ATAN2(e[0], e[1]);
+        s->delta = d;
+        s->cos_half_delta = GN_COS(R(0.5) * d);
+        s->sin_half_delta = GN_SIN(R(0.5) * d);
+    }
+}
+
 static void rest_acc(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coefficients *c,
                      const real_t a[3])
 {
@@ -499,6 +542,9 @@ static void rest_acc(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_coeff
         if (far <= c->rest_th_rate || (s->rest_t >= c->rest_min_large_s && (
                 c->rest_th_turn2 == R(0.0) || gyro_says_turned(s, c)))) {
             s->rest = true;
+            if (c->rest_reset && !s->reset_done) {
+                first_rest_reset(s, c, l);
+            }
         }
     }
 }
@@ -979,6 +1025,9 @@ int gnomon_robust_ahrs_update_gyro(gnomon_robust_ahrs_state *s,
     if (new_m && m[0] * m[0] + m[1] * m[1] + m[2] * m[2] > R(0.0)) {
         if (c->rest_bias) {
             rest_mag(s, c, m);
+        }
+        if (s->heading_reset) {
+            heading_reset(s, Rm);
         }
         magnetometer(s, c, Rm, m);
     } else {

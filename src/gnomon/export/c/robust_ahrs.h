@@ -25,8 +25,10 @@
  * phase (rest detection's gyro part, strapdown; a gap, dt_s > max_dt_s, ends the step
  * there), then with a new accelerometer sample the accelerometer phase (rest detection's
  * accelerometer part, inclination, the gyro-bias Kalman filter on every bias_every-th
- * sample), then with a new magnetometer sample the magnetometer phase (block mean of
- * mag_every samples, hard-iron offset, disturbance detection, heading gain, heading).
+ * sample; the first rest of the start-up restarts the low-pass in frame I at the rest's
+ * force), then with a new magnetometer sample the magnetometer phase (the first rest's
+ * heading, block mean of mag_every samples, hard-iron offset, disturbance detection,
+ * heading gain, heading).
  * No initial attitude is needed: the low-pass filters start as running means.
  */
 #ifndef GNOMON_ROBUST_AHRS_H
@@ -64,6 +66,8 @@ typedef struct {
     real_t rest_th_turn_deg;      /* a turn of the accelerometer or magnetometer direction
                                    * beyond this ends a rest, deg (0: off) */
     real_t rest_th_acc_m_s2;      /* rest threshold on the accelerometer deviation, m/s^2 */
+    bool rest_reset;              /* the first rest of the start-up sets the inclination and
+                                   * the heading from the rest's accelerometer and field */
     real_t mag_current_tau_s;     /* low-pass of the field's norm and dip, s */
     real_t mag_ref_tau_s;         /* learned field reference time constant, s */
     real_t mag_norm_th;           /* relative norm deviation flagging a disturbance */
@@ -124,6 +128,7 @@ typedef struct {
     real_t rest_min_large_s;
     gnomon_robust_ahrs_lowpass rest_mag_lp;  /* the magnetometer, body (its own ts) */
     real_t rest_th_turn2;   /* squared chord of rest_th_turn_deg (0: off) */
+    bool rest_reset;
     gnomon_robust_ahrs_lowpass acc_lp;       /* the accelerometer in frame I */
     bool motion_bias;
     int32_t bias_every;
@@ -217,6 +222,8 @@ typedef struct {
     bool bias_at_limit;  /* a component of the bias at +-bias_clip */
     bool mag_body_ok;    /* mag_body_lp holds a sample */
     bool rest_m0_ok;     /* rest_m0 was taken */
+    bool reset_done;     /* the first rest came (and reset the start-up's estimate) */
+    bool heading_reset;  /* the next magnetometer sample sets the heading */
     /* inclination and bias in motion */
     gnomon_robust_ahrs_lowpass3 acc_lp;  /* m/s^2, frame I */
     real_t acc_rate;     /* rad/s: sine of the last correction angle / ts */

@@ -14,7 +14,7 @@ SPECS = (FilterSpec(
             "bias_sigma_motion_deg_s", "bias_vertical_forgetting", "bias_sigma_rest_deg_s",
             "rest_min_s", "rest_tau_s", "rest_th_gyro_deg_s", "rest_th_rate_deg_s",
             "rest_min_large_bias_s", "rest_th_turn_deg",
-            "rest_th_acc_m_s2", "mag_current_tau_s", "mag_ref_tau_s",
+            "rest_th_acc_m_s2", "rest_reset", "mag_current_tau_s", "mag_ref_tau_s",
             "mag_norm_th", "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
             "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s",
             "mag_reject_factor", "mag_return_dis_deg", "max_dt_s", "mag_soft_norm",
