@@ -448,14 +448,14 @@ def _turned_field(n, t, turned_until_s):
 def test_a_returning_field_turned_away_from_the_heading_stays_rejected():
     """A disturbance that passes the norm and dip bounds (the field turned 90 deg about the
     vertical) right after a flagged one is not taken for the field returning
-    (``mag_return_dis_deg``); without that test it pulls the heading towards 90 deg."""
+    (``mag_heading_dis_deg``); without that test it pulls the heading towards 90 deg."""
     n, fs = 9000, 100.0
     t = np.arange(n) / fs
     h, turn = _turned_field(n, t, 60.0)
     rec = wobble(n=n, mag_n=h, seed=3)
     head = {}
     for th in (0.0, 60.0):
-        est = RobustAHRS(mag_return_dis_deg=th).run(rec)
+        est = RobustAHRS(mag_heading_dis_deg=th).run(rec)
         head[th] = deg(np.abs(broad_errors_rad(rec.q_true, est.q)["heading"]))
         if th:
             assert est.signals["mag_disturbed"][turn].all()
@@ -465,8 +465,34 @@ def test_a_returning_field_turned_away_from_the_heading_stays_rejected():
     h2 = np.tile(FIELD, (n, 1))
     h2[(t >= 40) & (t < 45)] *= 1.6
     rec2 = wobble(n=n, mag_n=h2, seed=3)
-    q = [RobustAHRS(mag_return_dis_deg=th).run(rec2).q for th in (0.0, 60.0)]
+    q = [RobustAHRS(mag_heading_dis_deg=th).run(rec2).q for th in (0.0, 60.0)]
     np.testing.assert_array_equal(q[0], q[1])
+
+
+def test_a_field_that_turns_within_the_bounds_is_rejected():
+    """A room's field that turns by 120 deg about the vertical in 5 s (norm and dip
+    unchanged, so the norm and dip tests pass it), stays turned for 35 s and turns back:
+    once its heading disagrees with the gyro-propagated one by ``mag_heading_dis_deg`` it
+    is a disturbance. Without the test the heading follows the turned field."""
+    n, fs = 9000, 100.0
+    t = np.arange(n) / fs
+    psi = np.radians(120.0) * (np.clip((t - 40) / 5, 0, 1) - np.clip((t - 80) / 5, 0, 1))
+    h = np.stack([-np.sin(psi) * FIELD[1], np.cos(psi) * FIELD[1], np.full(n, FIELD[2])], 1)
+    rec = wobble(n=n, mag_n=h, seed=3)
+    hold = (t >= 45) & (t < 80)
+    est = {th: RobustAHRS(mag_heading_dis_deg=th).run(rec) for th in (0.0, 60.0)}
+    head = {th: deg(np.abs(broad_errors_rad(rec.q_true, e.q)["heading"]))
+            for th, e in est.items()}
+    assert est[60.0].signals["mag_disturbed"][hold].all()
+    # measured: 15.6 deg (followed before the disagreement reached 60 deg) against 119 deg
+    assert head[60.0][hold].max() < 25.0 and head[0.0][hold].max() > 90.0
+    # before the turn the test changes nothing
+    np.testing.assert_array_equal(est[60.0].q[t < 40], est[0.0].q[t < 40])
+    # its former name (the test ran only right after a flagged disturbance) says the new one
+    from gnomon.errors import InputError
+
+    with pytest.raises(InputError, match="mag_heading_dis_deg"):
+        RobustAHRSParams.from_dict({"mag_return_dis_deg": 60.0})
 
 
 def test_a_turned_field_is_taken_after_the_longest_rejection():

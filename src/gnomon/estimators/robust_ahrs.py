@@ -98,13 +98,14 @@ n = ENU. The estimate is
   ``mag_max_reject_s`` (then used with gain / ``mag_reject_factor``); it is
   accepted again after ``mag_min_undisturbed_s`` inside the bounds. A new field
   that stays steady for ``mag_new_s`` of motion (``mag_new_first_s`` when no
-  reference exists yet) becomes the reference. A field back inside the bounds
-  (or a new one) whose heading disagrees with the estimate by more than
-  ``mag_return_dis_deg`` is still a disturbance (gnomon's addition): a disturbed
+  reference exists yet) becomes the reference. A field inside the bounds whose
+  heading disagrees with the estimate by more than ``mag_heading_dis_deg`` is a
+  disturbance too (gnomon's addition; after the heading's start-up): a disturbed
   field can pass the norm and dip tests while it points elsewhere (a room whose
-  field turns by tens of degrees), and the heading gain is high after a long
-  rejection. The gyro drifts far less than that while a rejection lasts, so the
-  test holds it back for at most ``mag_max_reject_s``.
+  field turns by tens of degrees, or a field back in the bounds but turned away),
+  and the heading gain is high after a long rejection. The gyro drifts far less
+  than that while a rejection lasts, so the test holds the field back for at most
+  ``mag_max_reject_s``.
 
 Filter coefficients use nominal sample times ``ts`` = (gyro, accelerometer,
 magnetometer): for ``run`` the median of the first 100 regular intervals of each
@@ -145,6 +146,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -176,6 +178,8 @@ __all__ = ["RobustAHRSParams", "RobustAHRS", "coefficients", "butter2", "new_sta
 
 @dataclass(frozen=True)
 class RobustAHRSParams(Params):
+    renamed: ClassVar[dict[str, str]] = {"mag_return_dis_deg": "mag_heading_dis_deg"}
+
     tau_acc_s: float = param(2.5, "s", "time constant of the accelerometer low-pass in the "
                              "almost-inertial frame (inclination correction)")
     tau_mag_s: float = param(30.0, "s", "time constant of the heading correction")
@@ -245,10 +249,11 @@ class RobustAHRSParams(Params):
     mag_max_reject_s: float = param(60.0, "s", "longest full rejection of a disturbed field")
     mag_reject_factor: float = param(2.0, "", "gain divisor after that; rejection time "
                                      "recovers this much faster")
-    mag_return_dis_deg: float = param(60.0, "deg", "a field back within the norm and dip "
-                                      "bounds after a disturbance (or a new field) whose "
-                                      "heading disagrees with the estimate by more than this "
-                                      "stays rejected, up to mag_max_reject_s (0: off)")
+    mag_heading_dis_deg: float = param(60.0, "deg", "a field within the norm and dip bounds "
+                                       "whose heading disagrees with the estimate by more "
+                                       "than this (after the start-up) is a disturbance too: "
+                                       "a field that turns, or one back in the bounds turned "
+                                       "away; up to mag_max_reject_s (0: off)")
     max_dt_s: float = param(1.0, "s", "longer sample intervals are gaps: gyro only")
     mag_soft_norm: float = param(0.0, "", "soft de-weighting: relative norm deviation that "
                                  "doubles the heading measurement variance (0: off)")
@@ -281,7 +286,7 @@ class RobustAHRSParams(Params):
                      "mag_soft_dip_deg",
                      "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s"):
             self._require(name, getattr(self, name) >= 0, "must be >= 0")
-        self._require("mag_return_dis_deg", 0 <= self.mag_return_dis_deg <= 180,
+        self._require("mag_heading_dis_deg", 0 <= self.mag_heading_dis_deg <= 180,
                       "must be in [0, 180] (0: off)")
 
 
@@ -497,17 +502,16 @@ def _magnetometer(s, c, m):
     if c.hi_lambda > 0.0:
         _hard_iron(s, c, cnt)
     s.mag_sum, s.mag_count = 0.0, 0
-    soft, was_disturbed = 1.0, s.mag_disturbed
+    soft = 1.0
     if c.mag_rejection:
         nm = np.linalg.norm(m6)
         cur = _mag_disturbance(s, c, nm, -math.asin(min(max(m6[2] / nm, -1.0), 1.0)))
         soft = _new_field(s, c, cur)
     dis = _wrap(math.atan2(m6[0], m6[1]) - s.delta)
     s.mag_dis = dis
-    if (c.mag_return_dis > 0.0 and was_disturbed and not s.mag_disturbed
-            and s.k_mag_init == 0.0 and abs(dis) > c.mag_return_dis
-            and s.mag_reject_t <= c.mag_max_reject_s):
-        s.mag_disturbed, s.mag_undisturbed_t = True, 0.0  # back in the bounds, turned away
+    if (c.mag_heading_dis > 0.0 and not s.mag_disturbed and s.k_mag_init == 0.0
+            and abs(dis) > c.mag_heading_dis and s.mag_reject_t <= c.mag_max_reject_s):
+        s.mag_disturbed, s.mag_undisturbed_t = True, 0.0  # in the bounds, turned away
     s.k_mag_used = k = _heading_gain(s, c, soft, R[2] @ s.P @ R[2])  # R[2]: up in b
     s.delta = _wrap(s.delta + k * dis)
     s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * s.delta), math.sin(0.5 * s.delta)

@@ -626,7 +626,6 @@ def magnetometer(s, c, R, mx, my, mz):
     s.mag_sum[0], s.mag_sum[1], s.mag_sum[2] = 0.0, 0.0, 0.0
     s.mag_count = 0
     soft = 1.0
-    was_disturbed = s.mag_disturbed
     if c.mag_rejection:
         nm = math.sqrt(ex * ex + ey * ey + ez * ez)
         dip = -math.asin(min(max(ez / nm, -1.0), 1.0))
@@ -634,11 +633,10 @@ def magnetometer(s, c, R, mx, my, mz):
         soft = new_field(s, c, cur_n, cur_d)
     dis = wrap(math.atan2(ex, ey) - s.delta)
     s.mag_dis = dis
-    if c.mag_return_dis > 0.0 and was_disturbed and not s.mag_disturbed \
-            and s.k_mag_init == 0.0 and abs(dis) > c.mag_return_dis \
-            and s.mag_reject_t <= c.mag_max_reject_s:
-        # back within the norm and dip bounds, but turned away from the heading: a
-        # disturbance that passes them (a new field too), not the field returning
+    if c.mag_heading_dis > 0.0 and not s.mag_disturbed and s.k_mag_init == 0.0 \
+            and abs(dis) > c.mag_heading_dis and s.mag_reject_t <= c.mag_max_reject_s:
+        # within the norm and dip bounds, but turned away from the heading: a field that
+        # turns (a room's), or one back in the bounds turned away, not the Earth's
         s.mag_disturbed = True
         s.mag_undisturbed_t = 0.0
     k = heading_gain(s, c, soft, vertical_bias_var(s, R))

@@ -84,7 +84,7 @@ class Coefficients(NamedTuple):
     mag_min_undisturbed_s: float
     mag_max_reject_s: float
     mag_reject_factor: float
-    mag_return_dis: float  # rad (0: off)
+    mag_heading_dis: float  # rad (0: off)
     soft_norm: float  # 1 / mag_soft_norm² (0: off)
     soft_dip: float  # 1 / mag_soft_dip² (1/rad², 0: off)
     # heading
@@ -173,7 +173,7 @@ def coefficients(p, ts_s: float, ts_acc_s: float | None = None,
         mag_min_undisturbed_s=float(p.mag_min_undisturbed_s),
         mag_max_reject_s=float(p.mag_max_reject_s),
         mag_reject_factor=float(p.mag_reject_factor),
-        mag_return_dis=p.mag_return_dis_deg * d2r,
+        mag_heading_dis=p.mag_heading_dis_deg * d2r,
         soft_norm=1.0 / p.mag_soft_norm ** 2 if p.mag_soft_norm > 0 else 0.0,
         soft_dip=1.0 / (p.mag_soft_dip_deg * d2r) ** 2 if p.mag_soft_dip_deg > 0 else 0.0,
         tau_mag_s=float(p.tau_mag_s), k_mag=k_mag, heading_kf=bool(p.heading_kf),

@@ -121,7 +121,7 @@ void gnomon_robust_ahrs_coefficients_from(gnomon_robust_ahrs_coefficients *c,
     c->mag_min_undisturbed_s = p->mag_min_undisturbed_s;
     c->mag_max_reject_s = p->mag_max_reject_s;
     c->mag_reject_factor = p->mag_reject_factor;
-    c->mag_return_dis = p->mag_return_dis_deg * d2r;
+    c->mag_heading_dis = p->mag_heading_dis_deg * d2r;
     c->soft_norm = p->mag_soft_norm > R(0.0) ? R(1.0) / (p->mag_soft_norm * p->mag_soft_norm)
                                              : R(0.0);
     x = p->mag_soft_dip_deg * d2r;
@@ -930,7 +930,6 @@ static void magnetometer(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_c
     zero(s->mag_sum, 3);
     s->mag_count = 0;
     real_t soft = R(1.0);
-    bool was_disturbed = s->mag_disturbed;
     if (c->mag_rejection) {
         real_t nm = GN_SQRT(ex * ex + ey * ey + ez * ez);
         real_t dip = -GN_ASIN(gn_min(gn_max(ez / nm, R(-1.0)), R(1.0)));
@@ -940,11 +939,10 @@ static void magnetometer(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_c
     }
     real_t dis = wrap(GN_ATAN2(ex, ey) - s->delta);
     s->mag_dis = dis;
-    if (c->mag_return_dis > R(0.0) && was_disturbed && !s->mag_disturbed &&
-        s->k_mag_init == R(0.0) && GN_FABS(dis) > c->mag_return_dis &&
-        s->mag_reject_t <= c->mag_max_reject_s) {
-        /* back within the norm and dip bounds, but turned away from the heading: a
-         * disturbance that passes them (a new field too), not the field returning */
+    if (c->mag_heading_dis > R(0.0) && !s->mag_disturbed && s->k_mag_init == R(0.0) &&
+        GN_FABS(dis) > c->mag_heading_dis && s->mag_reject_t <= c->mag_max_reject_s) {
+        /* within the norm and dip bounds, but turned away from the heading: a field that
+         * turns (a room's), or one back in the bounds turned away, not the Earth's */
         s->mag_disturbed = true;
         s->mag_undisturbed_t = R(0.0);
     }

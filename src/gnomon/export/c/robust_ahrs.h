@@ -78,8 +78,8 @@ typedef struct {
     real_t mag_min_undisturbed_s;  /* undisturbed time before the field is used again, s */
     real_t mag_max_reject_s;      /* longest full rejection of a disturbed field, s */
     real_t mag_reject_factor;     /* gain divisor after that */
-    real_t mag_return_dis_deg;    /* a field back in the bounds whose heading disagrees by
-                                   * more than this stays rejected, deg (0: off) */
+    real_t mag_heading_dis_deg;   /* a field in the bounds whose heading disagrees by more
+                                   * than this is a disturbance too, deg (0: off) */
     real_t max_dt_s;              /* longer gyro intervals are gaps: gyro only, s */
     real_t mag_soft_norm;         /* soft de-weighting, relative norm (0: off) */
     real_t mag_soft_dip_deg;      /* soft de-weighting, dip, deg (0: off) */
@@ -156,7 +156,7 @@ typedef struct {
     real_t mag_min_undisturbed_s;
     real_t mag_max_reject_s;
     real_t mag_reject_factor;
-    real_t mag_return_dis;  /* rad (0: off) */
+    real_t mag_heading_dis;  /* rad (0: off) */
     real_t soft_norm;
     real_t soft_dip;        /* 1/rad^2 */
     real_t tau_mag_s;

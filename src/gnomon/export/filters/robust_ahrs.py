@@ -17,7 +17,7 @@ SPECS = (FilterSpec(
             "rest_th_acc_m_s2", "rest_reset", "mag_current_tau_s", "mag_ref_tau_s",
             "mag_norm_th", "mag_dip_th_deg", "mag_new_s", "mag_new_first_s",
             "mag_new_min_gyro_deg_s", "mag_min_undisturbed_s", "mag_max_reject_s",
-            "mag_reject_factor", "mag_return_dis_deg", "max_dt_s", "mag_soft_norm",
+            "mag_reject_factor", "mag_heading_dis_deg", "max_dt_s", "mag_soft_norm",
             "mag_soft_dip_deg",
             "hard_iron_tau_s", "hard_iron_reg", "hard_iron_gate", "mag_every", "bias_every"),
     signals=(("bias_rad_s", 3, "float"), ("bias_at_limit", 1, "bool"), ("rest", 1, "bool"),
