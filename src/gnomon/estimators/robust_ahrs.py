@@ -302,13 +302,24 @@ def _lowpass(f, x, lp):
         n = f.n + 1
         f.z0 += x  # the running sum
         y = f.z0 / n
-        if n * lp.ts_s >= lp.tau_s:
-            f.z0, f.z1, n = y * (1.0 - lp.b0), y * (lp.b2 - lp.a2), -1
         f.n = n
+        if n * lp.ts_s >= lp.tau_s:
+            _settle(f, y, lp)
         return y
     y = lp.b0 * x + f.z0
     f.z0, f.z1 = lp.b1 * x - lp.a1 * y + f.z1, lp.b2 * x - lp.a2 * y
     return y
+
+
+def _settle(f, y, lp):
+    """The low-pass state ``f`` set to its steady state for a constant input ``y`` (the
+    start-up's running mean over)."""
+    f.z0, f.z1, f.n = y * (1.0 - lp.b0), y * (lp.b2 - lp.a2), -1
+
+
+def _set_heading(s, d):
+    """``delta`` (rad) and the half-angle cosine and sine the estimate is built from."""
+    s.delta, s.cos_half_delta, s.sin_half_delta = d, math.cos(0.5 * d), math.sin(0.5 * d)
 
 
 def _wrap(a):
@@ -377,8 +388,7 @@ def _first_rest_reset(s, c, a_lp):
     s.reset_done = True
     if s.k_mag_init == 0.0:
         return
-    x, lp = dcm_from_quat(s.q_gyr) @ a_lp, c.acc_lp
-    s.acc_lp.z0, s.acc_lp.z1, s.acc_lp.n = x * (1.0 - lp.b0), x * (lp.b2 - lp.a2), -1
+    _settle(s.acc_lp, dcm_from_quat(s.q_gyr) @ a_lp, c.acc_lp)
     s.heading_reset = True
 
 
@@ -388,8 +398,7 @@ def _heading_reset(s):
     s.heading_reset = False
     m6 = _dcm6(s) @ (s.mag_body_lp - s.hard_iron.o)
     if m6[0] * m6[0] + m6[1] * m6[1] > 0.0:
-        s.delta = d = math.atan2(m6[0], m6[1])
-        s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * d), math.sin(0.5 * d)
+        _set_heading(s, math.atan2(m6[0], m6[1]))
 
 
 def _rest_acc(s, c, a):
@@ -513,8 +522,7 @@ def _magnetometer(s, c, m):
             and abs(dis) > c.mag_heading_dis and s.mag_reject_t <= c.mag_max_reject_s):
         s.mag_disturbed, s.mag_undisturbed_t = True, 0.0  # in the bounds, turned away
     s.k_mag_used = k = _heading_gain(s, c, soft, R[2] @ s.P @ R[2])  # R[2]: up in b
-    s.delta = _wrap(s.delta + k * dis)
-    s.cos_half_delta, s.sin_half_delta = math.cos(0.5 * s.delta), math.sin(0.5 * s.delta)
+    _set_heading(s, _wrap(s.delta + k * dis))
     if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:  # heading-rate bias loop
         db = -c.k_mag_bias * (k / c.k_mag) * dis * c.ts_mag  # dis < 0: bias along up too small
         s.bias = np.clip(s.bias + db * R[2], -c.bias_clip, c.bias_clip)  # R[2]: up in b

@@ -228,9 +228,10 @@ def ekf_jacobian_into(z, J, Jinv, h, w_io_o, gg, F, M, D, X, Om):
 @njit(cache=True)
 def ekf_jacobian(z, J, Jinv, h, w_io_o, gg):
     """``F = ∂f/∂z`` (7, 7) of :func:`ekf_f` as a new array (:func:`ekf_jacobian_into`)."""
-    w = workspace()
-    ekf_jacobian_into(z, J, Jinv, h, w_io_o, gg, w.F, w.M, w.D, w.Xi, w.Om)
-    return w.F
+    F = np.empty((7, 7))
+    ekf_jacobian_into(z, J, Jinv, h, w_io_o, gg, F, np.empty((3, 3)), np.empty((3, 4)),
+                      np.empty((4, 3)), np.empty((4, 4)))
+    return F
 
 
 @njit(cache=True)

@@ -189,6 +189,3 @@ def finite_or_nan(x, y, z):
     if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
         return x, y, z
     return math.nan, math.nan, math.nan
-
-
-# Small matrices as 2-D arrays: plain loops, sums left to right over the inner index.

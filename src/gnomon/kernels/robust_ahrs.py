@@ -80,6 +80,14 @@ BIAS_AT_LIMIT = 8  # written by the batch loop: a component of the bias at ``bia
 
 # ---------------------------------------------------------------- low-pass filters
 @njit(inline="always", error_model="numpy")
+def _settle(z0, z1, i, y, lp):
+    """Component ``i`` of a low-pass's delay lines ``z0``, ``z1`` set to its steady state
+    for a constant input ``y``."""
+    z0[i] = y * (1.0 - lp.b0)
+    z1[i] = y * (lp.b2 - lp.a2)
+
+
+@njit(inline="always", error_model="numpy")
 def _mean_step(z0, z1, i, x, n, done, lp):
     """Start-up of a low-pass: the running mean of component ``i`` (its sum in ``z0[i]``);
     ``done``: the mean becomes the filter's steady state (``z0``, ``z1`` (k,) views of a
@@ -87,8 +95,7 @@ def _mean_step(z0, z1, i, x, n, done, lp):
     z0[i] += x
     y = z0[i] / n
     if done:
-        z0[i] = y * (1.0 - lp.b0)
-        z1[i] = y * (lp.b2 - lp.a2)
+        _settle(z0, z1, i, y, lp)
     return y
 
 
@@ -149,6 +156,14 @@ def lowpass33(f, a, lp):
     r1 = _lowpass3_lines(z0[1], z1[1], a[3], a[4], a[5], n, done, lp)
     r2 = _lowpass3_lines(z0[2], z1[2], a[6], a[7], a[8], n, done, lp)
     return r0[0], r0[1], r0[2], r1[0], r1[1], r1[2], r2[0], r2[1], r2[2]
+
+
+@njit(inline="always", error_model="numpy")
+def set_heading(s, d):
+    """``delta`` (rad) and the half-angle cosine and sine the estimate is built from."""
+    s.delta = d
+    s.cos_half_delta = math.cos(0.5 * d)
+    s.sin_half_delta = math.sin(0.5 * d)
 
 
 @njit(inline="always", error_model="numpy")
@@ -233,9 +248,9 @@ def settle3(f, x0, x1, x2, lp):
     """Restart the ``LowPass`` ``lp`` of a 3-vector (state ``f``, ``LOWPASS_3``) settled at
     ``x``: its steady state for a constant input ``x`` (the start-up's running mean over)."""
     z0, z1 = f.z0, f.z1
-    z0[0], z0[1], z0[2] = x0 * (1.0 - lp.b0), x1 * (1.0 - lp.b0), x2 * (1.0 - lp.b0)
-    g = lp.b2 - lp.a2
-    z1[0], z1[1], z1[2] = x0 * g, x1 * g, x2 * g
+    _settle(z0, z1, 0, x0, lp)
+    _settle(z0, z1, 1, x1, lp)
+    _settle(z0, z1, 2, x2, lp)
     f.n = -1
 
 
@@ -266,10 +281,7 @@ def heading_reset(s, R):
     m, o = s.mag_body_lp, s.hard_iron.o
     ex, ey, _ = linalg.mat3_vec(R, m[0] - o[0], m[1] - o[1], m[2] - o[2])
     if ex * ex + ey * ey > 0.0:
-        d = math.atan2(ex, ey)
-        s.delta = d
-        s.cos_half_delta = math.cos(0.5 * d)
-        s.sin_half_delta = math.sin(0.5 * d)
+        set_heading(s, math.atan2(ex, ey))
 
 
 @njit(cache=True, no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
@@ -641,10 +653,7 @@ def magnetometer(s, c, R, mx, my, mz):
         s.mag_undisturbed_t = 0.0
     k = heading_gain(s, c, soft, vertical_bias_var(s, R))
     s.k_mag_used = k
-    d = wrap(s.delta + k * dis)
-    s.delta = d
-    s.cos_half_delta = math.cos(0.5 * d)
-    s.sin_half_delta = math.sin(0.5 * d)
+    set_heading(s, wrap(s.delta + k * dis))
     if c.k_mag_bias > 0.0 and k > 0.0 and s.k_mag_init == 0.0:
         # heading-rate bias: integral action about the vertical (third row of R_6b)
         # dis < 0: the field turned clockwise in frame 6, i.e. frame 6 turned

@@ -357,6 +357,13 @@ static int32_t lp_start(int32_t *fn, const gnomon_robust_ahrs_lowpass *lp, bool 
 }
 
 /* `count` values x through the low-pass lp with state (z0, z1, *fn); y the outputs */
+/* component i of a low-pass's delay lines set to its steady state for a constant input v */
+static void lp_settle(lp_t *z0, lp_t *z1, int i, lp_t v, const gnomon_robust_ahrs_lowpass *lp)
+{
+    z0[i] = v * (LPV(1.0) - lp->b0);
+    z1[i] = v * (lp->b2 - lp->a2);
+}
+
 static void lowpass(lp_t *z0, lp_t *z1, int32_t *fn, const real_t *x, int count,
                     const gnomon_robust_ahrs_lowpass *lp, real_t *y)
 {
@@ -367,8 +374,7 @@ static void lowpass(lp_t *z0, lp_t *z1, int32_t *fn, const real_t *x, int count,
             z0[i] += LPV(x[i]);
             lp_t v = z0[i] / LPV(n);
             if (done) {
-                z0[i] = v * (LPV(1.0) - lp->b0);
-                z1[i] = v * (lp->b2 - lp->a2);
+                lp_settle(z0, z1, i, v, lp);
             }
             y[i] = R(v);
         }
@@ -381,6 +387,14 @@ static void lowpass(lp_t *z0, lp_t *z1, int32_t *fn, const real_t *x, int count,
         z1[i] = lp->b2 * xi - lp->a2 * v;
         y[i] = R(v);
     }
+}
+
+/* delta (rad) and the half-angle cosine and sine the estimate is built from */
+static void set_heading(gnomon_robust_ahrs_state *s, real_t d)
+{
+    s->delta = d;
+    s->cos_half_delta = GN_COS(R(0.5) * d);
+    s->sin_half_delta = GN_SIN(R(0.5) * d);
 }
 
 static real_t wrap(real_t a)
@@ -489,10 +503,8 @@ static void first_rest_reset(gnomon_robust_ahrs_state *s,
         return;
     }
     rotate(s->q_gyr, l, ia);
-    const gnomon_robust_ahrs_lowpass *lp = &c->acc_lp;
-    for (int i = 0; i < 3; ++i) {  /* the steady state for a constant input ia */
-        s->acc_lp.z0[i] = LPV(ia[i]) * (LPV(1.0) - lp->b0);
-        s->acc_lp.z1[i] = LPV(ia[i]) * (lp->b2 - lp->a2);
+    for (int i = 0; i < 3; ++i) {
+        lp_settle(s->acc_lp.z0, s->acc_lp.z1, i, LPV(ia[i]), &c->acc_lp);
     }
     s->acc_lp.n = -1;
     s->heading_reset = true;
@@ -509,10 +521,7 @@ static void heading_reset(gnomon_robust_ahrs_state *s, const real_t Rm[9])
     }
     mat3_vec(Rm, m[0], m[1], m[2], e);
     if (e[0] * e[0] + e[1] * e[1] > R(0.0)) {
-        real_t d = GN_ATAN2(e[0], e[1]);
-        s->delta = d;
-        s->cos_half_delta = GN_COS(R(0.5) * d);
-        s->sin_half_delta = GN_SIN(R(0.5) * d);
+        set_heading(s, GN_ATAN2(e[0], e[1]));
     }
 }
 
@@ -948,10 +957,7 @@ static void magnetometer(gnomon_robust_ahrs_state *s, const gnomon_robust_ahrs_c
     }
     real_t k = heading_gain(s, c, soft, vertical_bias_var(s, Rm));
     s->k_mag_used = k;
-    real_t d = wrap(s->delta + k * dis);
-    s->delta = d;
-    s->cos_half_delta = GN_COS(R(0.5) * d);
-    s->sin_half_delta = GN_SIN(R(0.5) * d);
+    set_heading(s, wrap(s->delta + k * dis));
     if (c->k_mag_bias > R(0.0) && k > R(0.0) && s->k_mag_init == R(0.0)) {
         /* heading-rate bias: integral action about the vertical (third row of R_6b) */
         real_t db = -c->k_mag_bias * (k / c->k_mag) * dis * c->ts_mag;
